@@ -1,0 +1,1 @@
+//! ConfigBot's typed API: the `RobotStack` and `PerformanceSpec` manifests.
