@@ -28,6 +28,7 @@ pub use robot_stack::{RobotStack, RobotStackSpec, RobotStackStatus};
 pub use validate::FieldError;
 
 /// A decoded manifest of any kind.
+#[allow(clippy::large_enum_variant)] // short-lived values; boxing would only add noise
 #[derive(Debug, Clone, PartialEq)]
 pub enum Manifest {
     RobotStack(RobotStack),

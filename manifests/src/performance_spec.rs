@@ -124,22 +124,13 @@ impl Target {
 }
 
 /// The configuration space: CPU limits per node and adaptor rates per edge.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize, JsonSchema)]
 #[serde(rename_all = "camelCase", deny_unknown_fields)]
 pub struct Knobs {
     #[serde(default)]
     pub cpu: CpuKnobs,
     #[serde(default)]
     pub adaptors: AdaptorPolicy,
-}
-
-impl Default for Knobs {
-    fn default() -> Self {
-        Knobs {
-            cpu: CpuKnobs::default(),
-            adaptors: AdaptorPolicy::default(),
-        }
-    }
 }
 
 /// Bounds of the per-node `cpu.max` knobs.
