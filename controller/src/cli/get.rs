@@ -232,10 +232,7 @@ pub async fn describe(client: &Client, a: &DescribeArgs) -> anyhow::Result<ExitC
     println!("Status:");
     println!("  Phase: {}", st["phase"].as_str().unwrap_or("<none>"));
     println!("  Conditions:");
-    println!(
-        "    {:<15} {:<8} {:<16} {}",
-        "Type", "Status", "Reason", "Message"
-    );
+    println!("    {:<15} {:<8} {:<16} Message", "Type", "Status", "Reason");
     for c in st["conditions"].as_array().into_iter().flatten() {
         println!(
             "    {:<15} {:<8} {:<16} {}",
