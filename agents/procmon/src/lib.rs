@@ -42,6 +42,8 @@ pub enum Preference {
     Auto,
     /// Exactly this monitor (tests, benchmarks, operator override).
     Only(MonitorKind),
+    /// These monitors, in this order.
+    Order(Vec<MonitorKind>),
 }
 
 impl Preference {
@@ -50,6 +52,7 @@ impl Preference {
         match self {
             Preference::Auto => MonitorKind::ALL.to_vec(),
             Preference::Only(kind) => vec![*kind],
+            Preference::Order(kinds) => kinds.clone(),
         }
     }
 }
