@@ -1,8 +1,11 @@
 //! Fallback monitor on the netlink proc connector (`NETLINK_CONNECTOR`,
 //! multicast group `CN_IDX_PROC`): subscribes with `PROC_CN_MCAST_LISTEN`,
 //! waits for the kernel's acknowledgement, then turns `PROC_EVENT_EXEC` and
-//! `PROC_EVENT_EXIT` (of thread-group leaders) into [`ProcEvent`]s. Needs
-//! CAP_NET_ADMIN (root). Exec events carry only pids, so `comm`, `ppid`,
+//! `PROC_EVENT_EXIT` (of thread-group leaders) into [`ProcEvent`]s. Works
+//! only from the initial pid and user namespaces (the kernel silently ignores
+//! other subscribers: we then fail on the missing ack); older kernels need
+//! CAP_NET_ADMIN, newer ones (6.18 here) also accept unprivileged listeners.
+//! Exec events carry only pids, so `comm`, `ppid`,
 //! `filename` (`/proc/<pid>/exe`) and `cgroup` are read from /proc on receipt.
 //!
 //! The socket calls are raw `libc` (no extra crate); message bytes are built
@@ -46,7 +49,9 @@ const CACHE_LIMIT: usize = 65_536;
 pub enum ConnectorError {
     #[error("opening a NETLINK_CONNECTOR socket")]
     Socket(#[source] io::Error),
-    #[error("binding the netlink socket to the proc connector group (needs CAP_NET_ADMIN)")]
+    #[error(
+        "binding the netlink socket to the proc connector group (CAP_NET_ADMIN on older kernels)"
+    )]
     Bind(#[source] io::Error),
     #[error("sending the proc connector subscription")]
     Subscribe(#[source] io::Error),

@@ -145,7 +145,11 @@ pub fn error_chain(err: &dyn StdError) -> String {
     let mut text = err.to_string();
     let mut source = err.source();
     while let Some(cause) = source {
-        let _ = write!(text, ": {cause}");
+        let cause_text = cause.to_string();
+        // Some errors (aya's) already print their source: don't repeat it.
+        if !text.contains(&cause_text) {
+            let _ = write!(text, ": {cause_text}");
+        }
         source = cause.source();
     }
     text
@@ -301,6 +305,27 @@ mod tests {
         assert_eq!(
             Preference::Only(MonitorKind::ProcScan).order(),
             vec![MonitorKind::ProcScan]
+        );
+    }
+
+    #[derive(Debug, thiserror::Error)]
+    #[error("outer {0}")]
+    struct Outer(#[source] std::io::Error);
+
+    #[derive(Debug, thiserror::Error)]
+    #[error("plain outer")]
+    struct Plain(#[source] std::io::Error);
+
+    #[test]
+    fn error_chain_joins_and_dedups() {
+        let io = || std::io::Error::from_raw_os_error(libc::EPERM);
+        assert_eq!(
+            error_chain(&Plain(io())),
+            "plain outer: Operation not permitted (os error 1)"
+        );
+        assert_eq!(
+            error_chain(&Outer(io())),
+            "outer Operation not permitted (os error 1)"
         );
     }
 
