@@ -4,7 +4,9 @@
 //! relocations against `/sys/kernel/btf/vmlinux`), and turns ring-buffer
 //! records into [`ProcEvent`]s on a Tokio task.
 
-use std::path::PathBuf;
+// Without BPF (CONFIGBOT_PROCMON_NO_BPF=1) only the decoder's unit tests use it.
+#![cfg_attr(procmon_no_bpf, allow(dead_code))]
+
 use std::sync::Arc;
 
 use tokio::sync::mpsc;
@@ -148,6 +150,7 @@ mod enabled {
     use aya::maps::{Array, MapData, RingBuf};
     use aya::programs::BtfTracePoint;
     use aya::{Btf, Ebpf, EbpfLoader};
+    use std::path::PathBuf;
     use tokio::io::Interest;
     use tokio::io::unix::AsyncFd;
 
