@@ -212,3 +212,79 @@ fn watch_streams_changes() {
     let _ = watch.kill();
     let _ = watch.wait();
 }
+
+/// The real `kubectl` against the HTTPS listener: apply, get, describe, delete.
+#[test]
+fn stock_kubectl_works() {
+    let Ok(kubectl) = which("kubectl") else {
+        panic!("kubectl is not installed; `./x deps` installs it");
+    };
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::write(dir.path().join("token"), "t0ken-for-test\n").unwrap();
+    let port = std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port();
+    let child = Command::new(BIN)
+        .args(["serve", "--db"])
+        .arg(dir.path().join("db"))
+        .arg("--socket")
+        .arg(dir.path().join("api.sock"))
+        .args(["--listen", &format!("127.0.0.1:{port}"), "--token-file"])
+        .arg(dir.path().join("token"))
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let _server = Server(child);
+    let deadline = Instant::now() + Duration::from_secs(20);
+    while std::net::TcpStream::connect(("127.0.0.1", port)).is_err() {
+        assert!(Instant::now() < deadline, "https listener did not come up");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let k = |args: &[&str]| {
+        let out = Command::new(&kubectl)
+            .env("KUBECONFIG", dir.path().join("kubeconfig"))
+            .env("HOME", dir.path())
+            .args(["--server", &format!("https://127.0.0.1:{port}"), "--token", "t0ken-for-test", "--certificate-authority"])
+            .arg(dir.path().join("tls.crt"))
+            .args(args)
+            .output()
+            .unwrap();
+        (out.status.success(), format!("{}{}", String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr)))
+    };
+    let file = examples().join("basic-nav.yaml");
+    let (ok, out) = k(&["apply", "--validate=false", "-f", file.to_str().unwrap()]);
+    assert!(ok, "{out}");
+    assert!(out.contains("robotstack.configbot.dev/basic-nav created"), "{out}");
+    let deadline = Instant::now() + Duration::from_secs(20);
+    loop {
+        let (ok, out) = k(&["get", "rs"]);
+        assert!(ok, "{out}");
+        if out.contains("basic-nav") && out.contains("Accepted") {
+            break;
+        }
+        assert!(Instant::now() < deadline, "stack never showed Accepted:\n{out}");
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    let (ok, out) = k(&["get", "pspec", "basic-nav", "-o", "yaml"]);
+    assert!(ok && out.contains("stackRef"), "{out}");
+    let (ok, out) = k(&["describe", "rs", "basic-nav"]);
+    assert!(ok && out.contains("Events:"), "{out}");
+    let (ok, out) = k(&["delete", "pspec", "basic-nav"]);
+    assert!(ok, "{out}");
+    let (_, out) = k(&["get", "pspec"]);
+    assert!(out.contains("No resources found"), "{out}");
+    // Without the token, nothing.
+    let out = Command::new(&kubectl)
+        .env("HOME", dir.path())
+        .args(["--server", &format!("https://127.0.0.1:{port}"), "--insecure-skip-tls-verify", "get", "rs"])
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+}
+
+fn which(name: &str) -> Result<PathBuf, ()> {
+    std::env::var_os("PATH")
+        .into_iter()
+        .flat_map(|p| std::env::split_paths(&p).collect::<Vec<_>>())
+        .map(|d| d.join(name))
+        .find(|p| p.is_file())
+        .ok_or(())
+}

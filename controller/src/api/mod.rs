@@ -110,6 +110,10 @@ pub fn with_token(router: Router, token: String) -> Router {
     router.layer(middleware::from_fn(move |req: Request, next: Next| {
         let token = token.clone();
         async move {
+            // Like Kubernetes' public-info-viewer: version and health need no token.
+            if matches!(req.uri().path(), "/version" | "/healthz") {
+                return next.run(req).await;
+            }
             let given = req
                 .headers()
                 .get(header::AUTHORIZATION)
