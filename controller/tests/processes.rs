@@ -221,7 +221,11 @@ fn stock_kubectl_works() {
     };
     let dir = tempfile::tempdir().unwrap();
     std::fs::write(dir.path().join("token"), "t0ken-for-test\n").unwrap();
-    let port = std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port();
+    let port = std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port();
     let child = Command::new(BIN)
         .args(["serve", "--db"])
         .arg(dir.path().join("db"))
@@ -242,17 +246,33 @@ fn stock_kubectl_works() {
         let out = Command::new(&kubectl)
             .env("KUBECONFIG", dir.path().join("kubeconfig"))
             .env("HOME", dir.path())
-            .args(["--server", &format!("https://127.0.0.1:{port}"), "--token", "t0ken-for-test", "--certificate-authority"])
+            .args([
+                "--server",
+                &format!("https://127.0.0.1:{port}"),
+                "--token",
+                "t0ken-for-test",
+                "--certificate-authority",
+            ])
             .arg(dir.path().join("tls.crt"))
             .args(args)
             .output()
             .unwrap();
-        (out.status.success(), format!("{}{}", String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr)))
+        (
+            out.status.success(),
+            format!(
+                "{}{}",
+                String::from_utf8_lossy(&out.stdout),
+                String::from_utf8_lossy(&out.stderr)
+            ),
+        )
     };
     let file = examples().join("basic-nav.yaml");
     let (ok, out) = k(&["apply", "--validate=false", "-f", file.to_str().unwrap()]);
     assert!(ok, "{out}");
-    assert!(out.contains("robotstack.configbot.dev/basic-nav created"), "{out}");
+    assert!(
+        out.contains("robotstack.configbot.dev/basic-nav created"),
+        "{out}"
+    );
     let deadline = Instant::now() + Duration::from_secs(20);
     loop {
         let (ok, out) = k(&["get", "rs"]);
@@ -260,7 +280,10 @@ fn stock_kubectl_works() {
         if out.contains("basic-nav") && out.contains("Accepted") {
             break;
         }
-        assert!(Instant::now() < deadline, "stack never showed Accepted:\n{out}");
+        assert!(
+            Instant::now() < deadline,
+            "stack never showed Accepted:\n{out}"
+        );
         std::thread::sleep(Duration::from_millis(100));
     }
     let (ok, out) = k(&["get", "pspec", "basic-nav", "-o", "yaml"]);
@@ -274,7 +297,13 @@ fn stock_kubectl_works() {
     // Without the token, nothing.
     let out = Command::new(&kubectl)
         .env("HOME", dir.path())
-        .args(["--server", &format!("https://127.0.0.1:{port}"), "--insecure-skip-tls-verify", "get", "rs"])
+        .args([
+            "--server",
+            &format!("https://127.0.0.1:{port}"),
+            "--insecure-skip-tls-verify",
+            "get",
+            "rs",
+        ])
         .output()
         .unwrap();
     assert!(!out.status.success());

@@ -232,7 +232,10 @@ pub async fn describe(client: &Client, a: &DescribeArgs) -> anyhow::Result<ExitC
     println!("Status:");
     println!("  Phase: {}", st["phase"].as_str().unwrap_or("<none>"));
     println!("  Conditions:");
-    println!("    {:<15} {:<8} {:<16} Message", "Type", "Status", "Reason");
+    println!(
+        "    {:<15} {:<8} {:<16} Message",
+        "Type", "Status", "Reason"
+    );
     for c in st["conditions"].as_array().into_iter().flatten() {
         println!(
             "    {:<15} {:<8} {:<16} {}",
