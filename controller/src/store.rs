@@ -184,14 +184,7 @@ impl Store {
     }
 
     pub fn get(&self, kind: Kind, namespace: &str, name: &str) -> Result<Option<Value>> {
-        let body: Option<String> = self.with(|c| {
-            c.query_row(
-                "SELECT body FROM objects WHERE kind=?1 AND namespace=?2 AND name=?3",
-                params![kind.name(), namespace, name],
-                |r| r.get(0),
-            )
-            .optional()
-        })?;
+        let body = self.with(|c| read_body(c, kind, namespace, name))?;
         body.as_deref().map(parse_body).transpose()
     }
 
@@ -264,14 +257,7 @@ impl Store {
             .map(str::to_string);
         let out = self.with(|c| {
             let tx = c.transaction()?;
-            let old: Option<String> = tx
-                .query_row(
-                    "SELECT body FROM objects WHERE kind=?1 AND namespace=?2 AND name=?3",
-                    params![kind.name(), ns, name],
-                    |r| r.get(0),
-                )
-                .optional()?;
-            let old: Option<Value> = old.and_then(|s| serde_json::from_str(&s).ok());
+            let old = read_object(&tx, kind, &ns, &name)?;
             let outcome = match &old {
                 Some(_) if create_only => Outcome::Exists,
                 Some(old) => {
@@ -323,14 +309,8 @@ impl Store {
     ) -> Result<(Value, bool)> {
         let out = self.with(|c| {
             let tx = c.transaction()?;
-            let old: Option<String> = tx
-                .query_row(
-                    "SELECT body FROM objects WHERE kind=?1 AND namespace=?2 AND name=?3",
-                    params![kind.name(), namespace, name],
-                    |r| r.get(0),
-                )
-                .optional()?;
-            let Some(old) = old.and_then(|s| serde_json::from_str::<Value>(&s).ok()) else {
+            let old = read_object(&tx, kind, namespace, name)?;
+            let Some(old) = old else {
                 return Ok(Outcome::Missing);
             };
             let current = old["metadata"]["resourceVersion"]
@@ -360,14 +340,8 @@ impl Store {
     pub fn delete(&self, kind: Kind, namespace: &str, name: &str) -> Result<Value> {
         let out = self.with(|c| {
             let tx = c.transaction()?;
-            let old: Option<String> = tx
-                .query_row(
-                    "SELECT body FROM objects WHERE kind=?1 AND namespace=?2 AND name=?3",
-                    params![kind.name(), namespace, name],
-                    |r| r.get(0),
-                )
-                .optional()?;
-            let Some(old) = old.and_then(|s| serde_json::from_str::<Value>(&s).ok()) else {
+            let old = read_object(&tx, kind, namespace, name)?;
+            let Some(old) = old else {
                 return Ok(Outcome::Missing);
             };
             tx.execute(
@@ -491,6 +465,23 @@ impl Store {
             .collect()
         })
     }
+}
+
+/// The stored body of one object; an unreadable body counts as absent.
+fn read_object(
+    c: &Connection,
+    kind: Kind,
+    namespace: &str,
+    name: &str,
+) -> rusqlite::Result<Option<Value>> {
+    let body: Option<String> = c
+        .query_row(
+            "SELECT body FROM objects WHERE kind=?1 AND namespace=?2 AND name=?3",
+            params![kind.name(), namespace, name],
+            |r| r.get(0),
+        )
+        .optional()?;
+    Ok(body.and_then(|b| serde_json::from_str(&b).ok()))
 }
 
 enum Outcome {
