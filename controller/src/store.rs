@@ -467,21 +467,29 @@ impl Store {
     }
 }
 
-/// The stored body of one object; an unreadable body counts as absent.
+/// The stored JSON text of one object.
+fn read_body(
+    c: &Connection,
+    kind: Kind,
+    namespace: &str,
+    name: &str,
+) -> rusqlite::Result<Option<String>> {
+    c.query_row(
+        "SELECT body FROM objects WHERE kind=?1 AND namespace=?2 AND name=?3",
+        params![kind.name(), namespace, name],
+        |r| r.get(0),
+    )
+    .optional()
+}
+
+/// The stored object, inside a write transaction (an unreadable body counts as absent).
 fn read_object(
     c: &Connection,
     kind: Kind,
     namespace: &str,
     name: &str,
 ) -> rusqlite::Result<Option<Value>> {
-    let body: Option<String> = c
-        .query_row(
-            "SELECT body FROM objects WHERE kind=?1 AND namespace=?2 AND name=?3",
-            params![kind.name(), namespace, name],
-            |r| r.get(0),
-        )
-        .optional()?;
-    Ok(body.and_then(|b| serde_json::from_str(&b).ok()))
+    Ok(read_body(c, kind, namespace, name)?.and_then(|b| serde_json::from_str(&b).ok()))
 }
 
 enum Outcome {
