@@ -89,8 +89,22 @@ impl fmt::Display for NodeName {
 
 /// The agent's subtree below each hierarchy's mount point, e.g. `configbot`
 /// or a delegated `system.slice/configbot.service`.
-#[derive(Debug, Clone, PartialEq, Eq, Hash)]
+#[derive(Debug, Clone, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
+#[serde(try_from = "String", into = "String")]
 pub struct SubtreeRoot(PathBuf);
+
+impl TryFrom<String> for SubtreeRoot {
+    type Error = Error;
+    fn try_from(s: String) -> Result<Self> {
+        Self::new(&s)
+    }
+}
+
+impl From<SubtreeRoot> for String {
+    fn from(r: SubtreeRoot) -> String {
+        r.0.to_string_lossy().into_owned()
+    }
+}
 
 impl SubtreeRoot {
     /// Validates a relative path of plain components (`[A-Za-z0-9_.@-]`, no `.`/`..`).
