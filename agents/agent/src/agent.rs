@@ -338,12 +338,24 @@ impl Agent {
             Some(p) => vec![p],
             None => list_procs(&self.inner.proc_root),
         };
+        // A process already in any node's cgroup stays there: the first node
+        // that claims it wins, and run nodes' processes are never stolen.
+        let mut owned: std::collections::HashSet<u32> = self
+            .st()
+            .nodes
+            .keys()
+            .cloned()
+            .collect::<Vec<_>>()
+            .iter()
+            .flat_map(|n| self.backend().pids(n).unwrap_or_default())
+            .collect();
         let me = std::process::id();
         for (node, m) in matchers {
-            let in_cgroup = self.backend().pids(&node).unwrap_or_default();
             for p in procs.iter().filter(|p| p.pid != me && m.matches(p)) {
-                if !in_cgroup.contains(&p.pid) {
-                    let _ = self.adopt_with(&node, p.pid, &procs);
+                if owned.insert(p.pid)
+                    && let Ok(moved) = self.adopt_with(&node, p.pid, &procs)
+                {
+                    owned.extend(moved);
                 }
             }
         }

@@ -248,3 +248,33 @@ async fn app_stop_is_graceful_and_start_brings_it_back() {
     .await;
     assert!(agent.stop_app("ghost").await.is_err());
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_process_matching_two_match_nodes_is_claimed_once() {
+    let mut env = Env::new();
+    let tag = format!("0.{}9", std::process::id());
+    let child = std::process::Command::new("/bin/sleep")
+        .args(["120", &tag])
+        .spawn()
+        .unwrap();
+    let pid = child.id();
+    env.children.push(child);
+    let re = format!("^/bin/sleep 120 {tag}$");
+    let stack = stack_json(&format!(
+        r#"{{"apps":[{{"name":"a","nodes":[{{"name":"/one","match":{{"cmdlineRegex":"{re}"}}}},{{"name":"/two","match":{{"cmdlineRegex":"{re}"}}}}]}}]}}"#
+    ));
+    let agent = env.start(stack).await;
+    let mut rx = agent.subscribe();
+    // Several scan intervals pass (100 ms each): the process must not move again.
+    for _ in 0..3 {
+        agent.process_event(&configbot_agent::ProcEvent {
+            pid,
+            ppid: 1,
+            comm: "sleep".into(),
+        });
+        wait_event(&mut rx, T, |e| matches!(e, AgentEvent::ProcessExec { .. })).await;
+        tokio::time::sleep(Duration::from_millis(150)).await;
+    }
+    assert_eq!(agent.backend().pids(&node("/one")).unwrap(), [pid]);
+    assert!(agent.backend().pids(&node("/two")).unwrap().is_empty());
+}
