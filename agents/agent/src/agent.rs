@@ -12,7 +12,7 @@ use tokio::sync::{broadcast, watch};
 use tokio::task::JoinHandle;
 
 use crate::error::{Error, Result};
-use crate::events::{AgentEvent, ProcEvent};
+use crate::events::{AgentEvent, ProcEvent, ProcEventKind};
 use crate::metrics::Metrics;
 use crate::procfs::{Matcher, ProcInfo, is_alive, list_procs, read_proc, with_descendants};
 use crate::spec::{AgentSettings, NodeSource, NodeSpec, StackSpec};
@@ -146,9 +146,15 @@ impl Agent {
             let mut tick = tokio::time::interval(bg.inner.settings.scan_interval);
             loop {
                 tick.tick().await;
-                bg.scan_matches(None);
-                bg.sample();
-                bg.rotate_logs();
+                // /proc and cgroup reads are blocking file IO: keep them off
+                // the (possibly single-threaded) runtime serving the API.
+                let a = bg.clone();
+                let _ = tokio::task::spawn_blocking(move || {
+                    a.scan_matches(None);
+                    a.sample();
+                    a.rotate_logs();
+                })
+                .await;
             }
         });
         *lock(&agent.inner.background) = Some(handle);
@@ -280,8 +286,8 @@ impl Agent {
             }
         };
         if let Err(e) = state::save(&self.inner.settings.state_file, &snapshot) {
-            self.emit(AgentEvent::ConfigRejected {
-                error: format!("cannot persist state: {e}"),
+            self.emit(AgentEvent::StateWriteFailed {
+                error: error_chain(&e),
             });
         }
     }
@@ -361,13 +367,17 @@ impl Agent {
         }
     }
 
-    /// Feeds one process-monitor event: counts it and adopts at once if it matches.
+    /// Feeds one process-monitor event: counts it; an exec that matches a
+    /// `match` node is adopted at once instead of at the next scan.
     pub fn process_event(&self, ev: &ProcEvent) {
         self.inner
             .metrics
             .monitor_events
-            .with_label_values(&["exec"])
+            .with_label_values(&[ev.kind.label()])
             .inc();
+        if ev.kind != ProcEventKind::Exec {
+            return;
+        }
         self.emit(AgentEvent::ProcessExec {
             pid: ev.pid,
             comm: ev.comm.clone(),
@@ -449,12 +459,13 @@ impl Agent {
                     rt.supervisor.take()
                 })
             };
-            match sup {
-                Some((tx, handle)) => {
-                    let _ = tx.send(true);
-                    let _ = handle.await;
-                }
-                None => supervise::terminate(self, &node, None).await,
+            if let Some((tx, handle)) = sup {
+                let _ = tx.send(true);
+                let _ = handle.await;
+            }
+            // match nodes, and anything a finished run node left behind.
+            if !self.backend().pids(&node).unwrap_or_default().is_empty() {
+                supervise::terminate(self, &node, None).await;
             }
         }
         self.persist();

@@ -44,15 +44,36 @@ pub enum AgentEvent {
         nodes: Vec<NodeName>,
         reason: &'static str,
     },
-    /// A process event from the process monitor (procmon crate).
+    /// A process exec seen by the process monitor (procmon crate).
     #[serde(rename_all = "camelCase")]
-    ProcessExec { pid: u32, comm: String },
+    ProcessExec { pid: u32, comm: Option<String> },
+    #[serde(rename_all = "camelCase")]
+    StateWriteFailed { error: String },
 }
 
-/// A process event as the process monitor reports it.
+/// Exec or exit, as in `configbot_procmon::ProcEventKind`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ProcEventKind {
+    Exec,
+    Exit,
+}
+
+impl ProcEventKind {
+    /// Label value of the `monitor_events` metric.
+    pub fn label(self) -> &'static str {
+        match self {
+            Self::Exec => "exec",
+            Self::Exit => "exit",
+        }
+    }
+}
+
+/// The part of a process-monitor event the agent uses; the lead maps
+/// `configbot_procmon::ProcEvent` onto it field by field.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct ProcEvent {
+    pub kind: ProcEventKind,
     pub pid: u32,
-    pub ppid: u32,
-    pub comm: String,
+    pub ppid: Option<u32>,
+    pub comm: Option<String>,
 }

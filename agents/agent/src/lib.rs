@@ -22,7 +22,7 @@ mod supervise;
 
 pub use agent::{Agent, ConfigUpdate, NodeStatus};
 pub use error::{Error, Result};
-pub use events::{AgentEvent, ProcEvent};
+pub use events::{AgentEvent, ProcEvent, ProcEventKind};
 pub use spec::{
     AgentSettings, AppSpec, MatchSpec, NodeSource, NodeSpec, RestartPolicy, RunSpec, StackSpec,
 };

@@ -123,11 +123,22 @@ async fn endpoints_inventory_config_metrics_events() {
     }
     agent.set_active_monitor("ebpf");
     agent.process_event(&configbot_agent::ProcEvent {
+        kind: configbot_agent::ProcEventKind::Exec,
         pid: std::process::id(),
-        ppid: 1,
-        comm: "x".into(),
+        ppid: Some(1),
+        comm: Some("x".into()),
+    });
+    agent.process_event(&configbot_agent::ProcEvent {
+        kind: configbot_agent::ProcEventKind::Exit,
+        pid: 1,
+        ppid: None,
+        comm: None,
     });
     let (_, text) = call(&app, "GET", "/metrics", "", None).await;
+    assert!(
+        text.contains("configbot_agent_monitor_events_total{kind=\"exit\"} 1"),
+        "{text}"
+    );
     assert!(
         text.contains("configbot_agent_active_monitor{monitor=\"ebpf\"} 1"),
         "{text}"

@@ -268,13 +268,45 @@ async fn a_process_matching_two_match_nodes_is_claimed_once() {
     // Several scan intervals pass (100 ms each): the process must not move again.
     for _ in 0..3 {
         agent.process_event(&configbot_agent::ProcEvent {
+            kind: configbot_agent::ProcEventKind::Exec,
             pid,
-            ppid: 1,
-            comm: "sleep".into(),
+            ppid: Some(1),
+            comm: Some("sleep".into()),
         });
         wait_event(&mut rx, T, |e| matches!(e, AgentEvent::ProcessExec { .. })).await;
         tokio::time::sleep(Duration::from_millis(150)).await;
     }
     assert_eq!(agent.backend().pids(&node("/one")).unwrap(), [pid]);
     assert!(agent.backend().pids(&node("/two")).unwrap().is_empty());
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn configured_shutdown_lifts_every_limit_and_keeps_processes() {
+    let mut env = Env::new();
+    let stack = stack_json(
+        r#"{"apps":[{"name":"a","nodes":[{"name":"/n","run":{"command":"/bin/sleep","args":["120"]}}]}]}"#,
+    );
+    let mut settings = env.settings();
+    settings.lift_limits_on_shutdown = true;
+    let agent = env.start_with(stack, settings).await;
+    let n = node("/n");
+    wait_until(T, "node running", || {
+        !agent.backend().pids(&n).unwrap().is_empty()
+    })
+    .await;
+    agent
+        .put_config(ConfigUpdate {
+            limits: BTreeMap::from([(n.clone(), CpuLimit::cpus(0.2))]),
+            adaptor_rates: BTreeMap::new(),
+        })
+        .unwrap();
+    assert_eq!(agent.backend().cpu_max(&n).unwrap().quota_us, Some(20_000));
+    let pids = agent.backend().pids(&n).unwrap();
+    agent.shutdown().await;
+    assert_eq!(agent.backend().cpu_max(&n).unwrap().quota_us, None);
+    assert_eq!(
+        agent.backend().pids(&n).unwrap(),
+        pids,
+        "shutdown must not kill nodes"
+    );
 }
