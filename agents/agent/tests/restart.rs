@@ -139,9 +139,7 @@ fn kill_9_then_restart_readopts_everything_with_limits_intact() {
     );
 
     // A re-attached run node is still supervised: killing it restarts it.
-    let _ = Command::new("kill")
-        .args(["-9", &worker_pid[0].to_string()])
-        .status();
+    kill9(worker_pid[0]);
     let deadline = Instant::now() + Duration::from_secs(20);
     loop {
         let now = pids_of(&b, "/worker");

@@ -80,9 +80,7 @@ fn add_pid_moves_every_thread_and_later_children() {
         if pids.len() >= 2 {
             for p in pids.iter().filter(|p| **p != pid) {
                 // The `sleep` is not our child: kill it so the cgroup empties.
-                let _ = std::process::Command::new("kill")
-                    .arg(p.to_string())
-                    .status();
+                common::kill9(*p);
             }
             break;
         }

@@ -94,3 +94,12 @@ pub fn measure_cpus(b: &dyn CgroupBackend, n: &NodeName, window: Duration) -> f6
     let u1 = b.stats(n).unwrap().usage_ns;
     (u1 - u0) as f64 / t0.elapsed().as_nanos() as f64
 }
+
+/// SIGKILL by pid (no `kill` binary needed).
+pub fn kill9(pid: u32) {
+    #[allow(unsafe_code)]
+    // SAFETY: kill(2) takes plain integers and touches no memory of ours.
+    unsafe {
+        libc::kill(pid as i32, libc::SIGKILL);
+    }
+}
