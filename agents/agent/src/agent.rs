@@ -119,6 +119,13 @@ impl Agent {
                 },
             );
         }
+        // Empty cgroups of nodes no longer in the stack go; ones that still
+        // hold processes are left alone (never kill what we do not supervise).
+        for stale in backend.nodes()? {
+            if !nodes.contains_key(&stale) && backend.pids(&stale).is_ok_and(|p| p.is_empty()) {
+                backend.remove(&stale)?;
+            }
+        }
         let (events, _) = broadcast::channel(1024);
         let agent = Self {
             inner: Arc::new(Inner {

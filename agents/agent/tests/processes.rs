@@ -9,7 +9,7 @@ use std::time::Duration;
 
 use common::*;
 use configbot_agent::{AgentEvent, ConfigUpdate, policy::ExitKind};
-use configbot_cgroups::CpuLimit;
+use configbot_cgroups::{CgroupBackend, CpuLimit};
 
 const T: Duration = Duration::from_secs(20);
 
@@ -309,4 +309,14 @@ async fn configured_shutdown_lifts_every_limit_and_keeps_processes() {
         pids,
         "shutdown must not kill nodes"
     );
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn empty_cgroups_of_removed_nodes_are_cleaned_up_at_start() {
+    let mut env = Env::new();
+    let b = v1_backend(&env.root);
+    let stale = node("/gone");
+    b.create(&stale).unwrap();
+    let agent = env.start(stack_json(r#"{"apps":[]}"#)).await;
+    assert!(!agent.backend().exists(&stale));
 }
