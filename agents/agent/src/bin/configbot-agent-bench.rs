@@ -36,9 +36,12 @@ fn own_cpu_ns() -> u64 {
 }
 
 #[derive(Debug, serde::Serialize)]
+#[serde(rename_all = "camelCase")]
 struct Phase {
     phase: String,
     nodes: usize,
+    /// Processes on the host (a /proc scan reads each of them).
+    host_processes: usize,
     seconds: f64,
     agent_cpu_percent: f64,
 }
@@ -74,9 +77,19 @@ async fn measure(
     agent.teardown().await?;
     #[allow(clippy::cast_precision_loss)]
     let pct = (c1 - c0) as f64 / dt.as_nanos() as f64 * 100.0;
+    let host_processes = std::fs::read_dir("/proc")?
+        .filter(|e| {
+            e.as_ref().is_ok_and(|e| {
+                e.file_name()
+                    .to_str()
+                    .is_some_and(|n| n.parse::<u32>().is_ok())
+            })
+        })
+        .count();
     Ok(Phase {
         phase: name.to_owned(),
         nodes,
+        host_processes,
         seconds: dt.as_secs_f64(),
         agent_cpu_percent: pct,
     })
@@ -139,13 +152,13 @@ async fn main() -> anyhow::Result<()> {
     let _ = std::fs::remove_dir_all(&dir);
     result?;
     println!(
-        "{:<8} {:>6} {:>9} {:>12}",
-        "phase", "nodes", "seconds", "agent cpu %"
+        "{:<8} {:>6} {:>10} {:>9} {:>12}",
+        "phase", "nodes", "host procs", "seconds", "agent cpu %"
     );
     for p in &phases {
         println!(
-            "{:<8} {:>6} {:>9.1} {:>12.3}",
-            p.phase, p.nodes, p.seconds, p.agent_cpu_percent
+            "{:<8} {:>6} {:>10} {:>9.1} {:>12.3}",
+            p.phase, p.nodes, p.host_processes, p.seconds, p.agent_cpu_percent
         );
     }
     let json = serde_json::json!({
