@@ -1,0 +1,28 @@
+//! ConfigBot node agent: runs and adopts ROS node processes inside per-node
+//! cgroups, applies CPU configs from the controller atomically, survives its
+//! own restarts, and serves an HTTP API with Prometheus metrics.
+//!
+//! Pure decisions live in [`policy`] (restart/backoff), [`state`] (startup
+//! safety) and [`procfs`] parsers; IO is in [`spawn`], [`supervise`],
+//! [`agent`] and [`api`]. Cgroup access goes through
+//! [`configbot_cgroups::CgroupBackend`].
+
+pub mod agent;
+pub mod api;
+pub mod cli;
+pub mod error;
+pub mod events;
+pub mod metrics;
+pub mod policy;
+pub mod procfs;
+pub mod spawn;
+pub mod spec;
+pub mod state;
+mod supervise;
+
+pub use agent::{Agent, ConfigUpdate, NodeStatus};
+pub use error::{Error, Result};
+pub use events::{AgentEvent, ProcEvent, ProcEventKind};
+pub use spec::{
+    AgentSettings, AppSpec, MatchSpec, NodeSource, NodeSpec, RestartPolicy, RunSpec, StackSpec,
+};

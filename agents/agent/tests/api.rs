@@ -1,0 +1,245 @@
+//! HTTP API tests: `Router::oneshot` for the endpoints, a real TCP listener
+//! for the bearer token, a real Unix socket for the 0600 rule (root needed).
+
+mod common;
+
+use std::os::unix::fs::PermissionsExt;
+use std::os::unix::process::CommandExt;
+use std::time::Duration;
+
+use axum::body::Body;
+use axum::http::{Request, StatusCode};
+use common::*;
+use configbot_agent::api::{bind_unix, router, serve_tcp, serve_unix};
+use http_body_util::BodyExt;
+use tower::ServiceExt;
+
+const STACK: &str = r#"{"apps":[{"name":"a","nodes":[
+    {"name":"/sleeper","run":{"command":"/bin/sleep","args":["120"]}},
+    {"name":"/absent","match":{"cmdlineRegex":"^no such process [0-9]{40}$"}}]}]}"#;
+
+async fn call(
+    app: &axum::Router,
+    method: &str,
+    uri: &str,
+    body: &str,
+    token: Option<&str>,
+) -> (StatusCode, String) {
+    let mut req = Request::builder()
+        .method(method)
+        .uri(uri)
+        .header("content-type", "application/json");
+    if let Some(t) = token {
+        req = req.header("authorization", format!("Bearer {t}"));
+    }
+    let resp = app
+        .clone()
+        .oneshot(req.body(Body::from(body.to_owned())).unwrap())
+        .await
+        .unwrap();
+    let status = resp.status();
+    let bytes = resp.into_body().collect().await.unwrap().to_bytes();
+    (status, String::from_utf8_lossy(&bytes).into_owned())
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn endpoints_inventory_config_metrics_events() {
+    let mut env = Env::new();
+    let agent = env.start(stack_json(STACK)).await;
+    let app = router(agent.clone(), None);
+
+    let (code, body) = call(&app, "GET", "/v1/nodes", "", None).await;
+    assert_eq!(code, StatusCode::OK);
+    let nodes: serde_json::Value = serde_json::from_str(&body).unwrap();
+    assert_eq!(nodes.as_array().unwrap().len(), 2, "{body}");
+    assert!(
+        nodes[1]["cgroup"]
+            .as_str()
+            .unwrap()
+            .ends_with("node-sleeper"),
+        "{body}"
+    );
+
+    // Event stream: subscribe, then cause an event.
+    let resp = app
+        .clone()
+        .oneshot(Request::get("/v1/events").body(Body::empty()).unwrap())
+        .await
+        .unwrap();
+    assert_eq!(resp.headers()["content-type"], "application/x-ndjson");
+    let mut events = resp.into_body();
+
+    let cases = [
+        (
+            r#"{"limits":{"/sleeper":{"cpus":-1}}}"#,
+            StatusCode::BAD_REQUEST,
+        ),
+        (
+            r#"{"limits":{"/sleeper":{"cpus":0.5,"periodUs":10}}}"#,
+            StatusCode::BAD_REQUEST,
+        ),
+        (
+            r#"{"limits":{"/ghost":{"cpus":0.5}}}"#,
+            StatusCode::NOT_FOUND,
+        ),
+        (
+            r#"{"limits":{"/../x":{"cpus":0.5}}}"#,
+            StatusCode::BAD_REQUEST,
+        ),
+        ("not json", StatusCode::BAD_REQUEST),
+        (
+            r#"{"limits":{"/sleeper":{"cpus":0.5,"periodUs":50000}},"adaptorRates":{"/scan":10.0}}"#,
+            StatusCode::OK,
+        ),
+    ];
+    for (body, want) in cases {
+        let (code, text) = call(&app, "PUT", "/v1/config", body, None).await;
+        assert_eq!(code, want, "{body} -> {text}");
+        assert!(text.contains("error") || code == StatusCode::OK, "{text}");
+    }
+    let m = agent.backend().cpu_max(&node("/sleeper")).unwrap();
+    assert_eq!((m.quota_us, m.period_us), (Some(25_000), 50_000));
+
+    let frame = tokio::time::timeout(Duration::from_secs(10), events.frame())
+        .await
+        .unwrap()
+        .unwrap()
+        .unwrap();
+    let line = String::from_utf8_lossy(frame.data_ref().unwrap()).into_owned();
+    assert!(line.ends_with('\n'), "{line}");
+    let ev: serde_json::Value = serde_json::from_str(line.trim()).unwrap();
+    assert!(ev["type"].is_string(), "{line}");
+
+    let (code, text) = call(&app, "GET", "/metrics", "", None).await;
+    assert_eq!(code, StatusCode::OK);
+    for want in [
+        "configbot_agent_node_cpu_limit_cpus{node=\"/sleeper\"} 0.5",
+        "configbot_agent_node_cpu_limit_cpus{node=\"/absent\"} -1",
+        "configbot_agent_active_monitor{monitor=\"proc_scan\"} 1",
+        "configbot_agent_node_cpu_usage_cpus{node=\"/sleeper\"}",
+        "configbot_agent_node_throttled_periods{node=\"/sleeper\"}",
+    ] {
+        assert!(text.contains(want), "missing {want} in\n{text}");
+    }
+    agent.set_active_monitor("ebpf");
+    agent.process_event(&configbot_agent::ProcEvent {
+        kind: configbot_agent::ProcEventKind::Exec,
+        pid: std::process::id(),
+        ppid: Some(1),
+        comm: Some("x".into()),
+    });
+    agent.process_event(&configbot_agent::ProcEvent {
+        kind: configbot_agent::ProcEventKind::Exit,
+        pid: 1,
+        ppid: None,
+        comm: None,
+    });
+    let (_, text) = call(&app, "GET", "/metrics", "", None).await;
+    assert!(
+        text.contains("configbot_agent_monitor_events_total{kind=\"exit\"} 1"),
+        "{text}"
+    );
+    assert!(
+        text.contains("configbot_agent_active_monitor{monitor=\"ebpf\"} 1"),
+        "{text}"
+    );
+    assert!(
+        text.contains("configbot_agent_active_monitor{monitor=\"proc_scan\"} 0"),
+        "{text}"
+    );
+    assert!(
+        text.contains("configbot_agent_monitor_events_total{kind=\"exec\"} 1"),
+        "{text}"
+    );
+
+    let (code, _) = call(&app, "POST", "/v1/apps/ghost/stop", "", None).await;
+    assert_eq!(code, StatusCode::NOT_FOUND);
+    let (code, _) = call(&app, "POST", "/v1/apps/a/stop", "", None).await;
+    assert_eq!(code, StatusCode::OK);
+    assert!(agent.backend().pids(&node("/sleeper")).unwrap().is_empty());
+    let (code, _) = call(&app, "POST", "/v1/apps/a/start", "", None).await;
+    assert_eq!(code, StatusCode::OK);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn tcp_needs_the_bearer_token() {
+    let mut env = Env::new();
+    let agent = env.start(stack_json(r#"{"apps":[]}"#)).await;
+    let app = router(agent.clone(), Some("s3cret".into()));
+    assert_eq!(
+        call(&app, "GET", "/v1/nodes", "", None).await.0,
+        StatusCode::UNAUTHORIZED
+    );
+    assert_eq!(
+        call(&app, "GET", "/metrics", "", Some("wrong")).await.0,
+        StatusCode::UNAUTHORIZED
+    );
+    assert_eq!(
+        call(&app, "GET", "/v1/nodes", "", Some("s3cret")).await.0,
+        StatusCode::OK
+    );
+
+    let l = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let addr = l.local_addr().unwrap();
+    tokio::spawn(serve_tcp(agent.clone(), l, "s3cret".into()));
+    let (no_token, with_token) = tokio::task::spawn_blocking(move || {
+        let a = http(
+            std::net::TcpStream::connect(addr).unwrap(),
+            "GET",
+            "/v1/nodes",
+            None,
+            None,
+        );
+        let b = http(
+            std::net::TcpStream::connect(addr).unwrap(),
+            "GET",
+            "/v1/nodes",
+            None,
+            Some("s3cret"),
+        );
+        (a, b)
+    })
+    .await
+    .unwrap();
+    assert_eq!(no_token.0, 401, "{}", no_token.1);
+    assert_eq!(with_token.0, 200, "{}", with_token.1);
+
+    let l = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+    assert!(
+        serve_tcp(agent, l, String::new()).await.is_err(),
+        "tcp without a token must be refused"
+    );
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn unix_socket_is_0600_and_refuses_other_users() {
+    let mut env = Env::new();
+    let agent = env.start(stack_json(r#"{"apps":[]}"#)).await;
+    // The directory is world-searchable, so only the socket's own mode protects it.
+    std::fs::set_permissions(env.dir.path(), std::fs::Permissions::from_mode(0o755)).unwrap();
+    let path = env.path("agent.sock");
+    let listener = bind_unix(&path).unwrap();
+    tokio::spawn(serve_unix(agent, listener));
+    let mode = std::fs::metadata(&path).unwrap().permissions().mode() & 0o777;
+    assert_eq!(mode, 0o600);
+
+    let p = path.clone();
+    let (root_status, nobody_exit) = tokio::task::spawn_blocking(move || {
+        let root = http(std::os::unix::net::UnixStream::connect(&p).unwrap(), "GET", "/v1/nodes", None, None);
+        let nobody = std::process::Command::new("/usr/bin/python3")
+            .args([
+                "-c",
+                "import socket,sys\ns=socket.socket(socket.AF_UNIX)\ntry:\n s.connect(sys.argv[1])\nexcept PermissionError:\n sys.exit(13)\nsys.exit(0)",
+                p.to_str().unwrap(),
+            ])
+            .uid(65534)
+            .gid(65534)
+            .status()
+            .unwrap();
+        (root.0, nobody.code())
+    })
+    .await
+    .unwrap();
+    assert_eq!(root_status, 200);
+    assert_eq!(nobody_exit, Some(13), "user nobody could connect");
+}

@@ -1,0 +1,201 @@
+//! Shared test helpers: unique cgroup subtrees, a guard that kills every
+//! process in them and removes them on drop, event waiting, raw HTTP.
+#![allow(dead_code)]
+
+use std::io::{Read, Write};
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicU32, Ordering};
+use std::time::{Duration, Instant};
+
+use configbot_agent::{Agent, AgentEvent, AgentSettings, StackSpec};
+use configbot_cgroups::{CgroupBackend, Layout, NodeName, SubtreeRoot, V1Backend};
+
+static COUNTER: AtomicU32 = AtomicU32::new(0);
+
+/// `configbot-agtest-<pid>-<n>`: the leftover check parses the pid back out.
+pub fn unique_root() -> String {
+    format!(
+        "configbot-agtest-{}-{}",
+        std::process::id(),
+        COUNTER.fetch_add(1, Ordering::Relaxed)
+    )
+}
+
+pub fn v1_backend(root: &str) -> V1Backend {
+    let l = Layout::detect().unwrap();
+    V1Backend::new(
+        l.v1_cpu.unwrap(),
+        l.v1_cpuacct.unwrap(),
+        SubtreeRoot::new(root).unwrap(),
+    )
+}
+
+/// Kills every process in every node cgroup below `root`, then removes them.
+pub fn nuke(root: &str) {
+    let b = v1_backend(root);
+    for n in b.nodes().unwrap_or_default() {
+        let deadline = Instant::now() + Duration::from_secs(10);
+        loop {
+            let pids = b.pids(&n).unwrap_or_default();
+            if pids.is_empty() && b.remove(&n).is_ok() {
+                break;
+            }
+            for p in pids {
+                kill9(p);
+            }
+            assert!(Instant::now() < deadline, "cannot empty {n}");
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+    let _ = b.remove_root();
+}
+
+/// Owns a test's subtree, temp dir, agent and extra children.
+pub struct Env {
+    pub root: String,
+    pub dir: tempfile::TempDir,
+    pub agent: Option<Agent>,
+    pub children: Vec<std::process::Child>,
+}
+
+impl Env {
+    pub fn new() -> Self {
+        Self {
+            root: unique_root(),
+            dir: tempfile::tempdir().unwrap(),
+            agent: None,
+            children: Vec::new(),
+        }
+    }
+
+    pub fn settings(&self) -> AgentSettings {
+        AgentSettings {
+            cgroup_root: SubtreeRoot::new(&self.root).unwrap(),
+            state_file: self.dir.path().join("state.json"),
+            log_dir: self.dir.path().join("logs"),
+            stop_timeout: Duration::from_millis(1500),
+            backoff_initial: Duration::from_millis(20),
+            backoff_max: Duration::from_millis(500),
+            scan_interval: Duration::from_millis(100),
+            ..AgentSettings::default()
+        }
+    }
+
+    pub async fn start(&mut self, stack: StackSpec) -> Agent {
+        self.start_with(stack, self.settings()).await
+    }
+
+    pub async fn start_with(&mut self, stack: StackSpec, settings: AgentSettings) -> Agent {
+        let backend = Box::new(v1_backend(&self.root));
+        let agent = Agent::start(backend, settings, stack).await.unwrap();
+        self.agent = Some(agent.clone());
+        agent
+    }
+
+    pub fn path(&self, name: &str) -> PathBuf {
+        self.dir.path().join(name)
+    }
+}
+
+impl Drop for Env {
+    fn drop(&mut self) {
+        if let Some(a) = &self.agent {
+            a.detach();
+        }
+        for c in &mut self.children {
+            let _ = c.kill();
+            let _ = c.wait();
+        }
+        nuke(&self.root);
+        if !std::thread::panicking() {
+            let b = v1_backend(&self.root);
+            assert!(
+                b.nodes().unwrap().is_empty(),
+                "cgroups left behind under {}",
+                self.root
+            );
+        }
+    }
+}
+
+pub fn node(name: &str) -> NodeName {
+    NodeName::new(name).unwrap()
+}
+
+/// Waits for an event that `pred` accepts.
+pub async fn wait_event(
+    rx: &mut tokio::sync::broadcast::Receiver<AgentEvent>,
+    timeout: Duration,
+    mut pred: impl FnMut(&AgentEvent) -> bool,
+) -> AgentEvent {
+    tokio::time::timeout(timeout, async {
+        loop {
+            match rx.recv().await {
+                Ok(ev) if pred(&ev) => return ev,
+                Ok(_) | Err(tokio::sync::broadcast::error::RecvError::Lagged(_)) => {}
+                Err(e) => panic!("event channel: {e}"),
+            }
+        }
+    })
+    .await
+    .expect("timed out waiting for event")
+}
+
+/// Polls `cond` until true or the timeout.
+pub async fn wait_until(timeout: Duration, what: &str, mut cond: impl FnMut() -> bool) {
+    let deadline = Instant::now() + timeout;
+    while !cond() {
+        assert!(Instant::now() < deadline, "timed out waiting for {what}");
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+}
+
+/// CPUs used by a node's cgroup over `window`.
+pub async fn measure_cpus(b: &dyn CgroupBackend, n: &NodeName, window: Duration) -> f64 {
+    let u0 = b.stats(n).unwrap().usage_ns;
+    let t0 = Instant::now();
+    tokio::time::sleep(window).await;
+    let u1 = b.stats(n).unwrap().usage_ns;
+    (u1 - u0) as f64 / t0.elapsed().as_nanos() as f64
+}
+
+/// One blocking HTTP/1.1 request over any stream; returns (status, body).
+pub fn http(
+    mut s: impl Read + Write,
+    method: &str,
+    path: &str,
+    body: Option<&str>,
+    token: Option<&str>,
+) -> (u16, String) {
+    let body = body.unwrap_or("");
+    let auth = token
+        .map(|t| format!("Authorization: Bearer {t}\r\n"))
+        .unwrap_or_default();
+    write!(
+        s,
+        "{method} {path} HTTP/1.1\r\nHost: agent\r\nConnection: close\r\n{auth}Content-Type: application/json\r\nContent-Length: {}\r\n\r\n{body}",
+        body.len()
+    )
+    .unwrap();
+    let mut out = String::new();
+    s.read_to_string(&mut out).unwrap();
+    let status = out.split_whitespace().nth(1).unwrap().parse().unwrap();
+    let body = out
+        .split_once("\r\n\r\n")
+        .map(|(_, b)| b.to_owned())
+        .unwrap_or_default();
+    (status, body)
+}
+
+pub fn stack_json(json: &str) -> StackSpec {
+    serde_json::from_str(json).unwrap()
+}
+
+/// SIGKILL by pid (no `kill` binary needed).
+pub fn kill9(pid: u32) {
+    #[allow(unsafe_code)]
+    // SAFETY: kill(2) takes plain integers and touches no memory of ours.
+    unsafe {
+        libc::kill(pid as i32, libc::SIGKILL);
+    }
+}
