@@ -229,8 +229,14 @@ mod tests {
         let ev = a.diff(&b);
         assert!(ev.contains(&GraphEvent::NodeAdded(node("/d"))));
         assert!(ev.contains(&GraphEvent::NodeRemoved("/c".into())));
-        assert!(ev.iter().any(|e| matches!(e, GraphEvent::EdgeAdded(x) if x.subscriber == "/d")));
-        assert!(ev.iter().any(|e| matches!(e, GraphEvent::EdgeRemoved(x) if x.subscriber == "/c")));
+        assert!(
+            ev.iter()
+                .any(|e| matches!(e, GraphEvent::EdgeAdded(x) if x.subscriber == "/d"))
+        );
+        assert!(
+            ev.iter()
+                .any(|e| matches!(e, GraphEvent::EdgeRemoved(x) if x.subscriber == "/c"))
+        );
         assert!(a.diff(&a).is_empty());
     }
 }

@@ -129,10 +129,15 @@ mod tests {
     }
 
     fn rates() -> BTreeMap<String, f64> {
-        [("/camera", 30.0), ("/odom", 50.0), ("/slow", 5.0), ("/rosout", 100.0)]
-            .into_iter()
-            .map(|(k, v)| (k.to_string(), v))
-            .collect()
+        [
+            ("/camera", 30.0),
+            ("/odom", 50.0),
+            ("/slow", 5.0),
+            ("/rosout", 100.0),
+        ]
+        .into_iter()
+        .map(|(k, v)| (k.to_string(), v))
+        .collect()
     }
 
     #[test]
@@ -156,7 +161,9 @@ mod tests {
     #[test]
     fn include_and_exclude_lists_win() {
         let cfg = PolicyConfig {
-            include: [e("/odom", "/nav"), e("/orphan", "/detector")].into_iter().collect(),
+            include: [e("/odom", "/nav"), e("/orphan", "/detector")]
+                .into_iter()
+                .collect(),
             exclude: [e("/camera", "/detector")].into_iter().collect(),
             ..PolicyConfig::default()
         };

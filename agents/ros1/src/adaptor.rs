@@ -67,19 +67,31 @@ impl AdaptorMetrics {
     pub fn new(registry: &Registry) -> Result<Self, prometheus::Error> {
         let labels = &["topic", "subscriber"];
         let forwarded = IntCounterVec::new(
-            Opts::new("configbot_adaptor_forwarded_total", "messages forwarded by an adaptor"),
+            Opts::new(
+                "configbot_adaptor_forwarded_total",
+                "messages forwarded by an adaptor",
+            ),
             labels,
         )?;
         let dropped = IntCounterVec::new(
-            Opts::new("configbot_adaptor_dropped_total", "messages dropped by an adaptor"),
+            Opts::new(
+                "configbot_adaptor_dropped_total",
+                "messages dropped by an adaptor",
+            ),
             labels,
         )?;
         let bytes = IntCounterVec::new(
-            Opts::new("configbot_adaptor_forwarded_bytes_total", "payload bytes forwarded by an adaptor"),
+            Opts::new(
+                "configbot_adaptor_forwarded_bytes_total",
+                "payload bytes forwarded by an adaptor",
+            ),
             labels,
         )?;
         let rate = GaugeVec::new(
-            Opts::new("configbot_adaptor_rate_hz", "configured adaptor rate, -1 = pass-through"),
+            Opts::new(
+                "configbot_adaptor_rate_hz",
+                "configured adaptor rate, -1 = pass-through",
+            ),
             labels,
         )?;
         registry.register(Box::new(forwarded.clone()))?;
@@ -154,7 +166,9 @@ impl EdgeRelay {
     }
 
     pub fn setting(&self) -> AdaptorSetting {
-        self.setting.lock().map_or_else(|_| AdaptorSetting::default(), |g| *g)
+        self.setting
+            .lock()
+            .map_or_else(|_| AdaptorSetting::default(), |g| *g)
     }
 
     pub fn counters(&self) -> EdgeCounters {
@@ -201,14 +215,20 @@ impl FrameSink for EdgeRelay {
         if latching && let Ok(mut l) = self.latched.lock() {
             *l = Some(frame.clone());
         }
-        let Ok(mut down) = self.downstream.lock() else { return };
+        let Ok(mut down) = self.downstream.lock() else {
+            return;
+        };
         down.retain(|s| !s.is_closed());
         if down.is_empty() {
             return;
         }
         let t = self.epoch.elapsed().as_secs_f64();
         let rate = self.setting().rate_hz;
-        let pass = self.limiter.lock().map(|mut l| l.admit(t, rate)).unwrap_or(true);
+        let pass = self
+            .limiter
+            .lock()
+            .map(|mut l| l.admit(t, rate))
+            .unwrap_or(true);
         let labels = self.labels();
         if !pass {
             self.dropped.fetch_add(1, Ordering::Relaxed);
@@ -256,7 +276,9 @@ pub async fn serve_tcpros(listener: TcpListener, relays: Relays, timeout: Durati
         let relays = relays.clone();
         tokio::spawn(async move {
             let peer = addr.to_string();
-            let Ok(h) = tcpros::read_header(&mut stream, &peer).await else { return };
+            let Ok(h) = tcpros::read_header(&mut stream, &peer).await else {
+                return;
+            };
             let id = EdgeId {
                 topic: h.get("topic").cloned().unwrap_or_default(),
                 subscriber: h.get("callerid").cloned().unwrap_or_default(),
@@ -264,21 +286,33 @@ pub async fn serve_tcpros(listener: TcpListener, relays: Relays, timeout: Durati
             let relay = relays.lock().ok().and_then(|r| r.get(&id).cloned());
             let Some(relay) = relay else {
                 let mut e = Header::new();
-                e.insert("error".into(), format!("no adaptor for {} on {}", id.subscriber, id.topic));
-                let _ = tokio::io::AsyncWriteExt::write_all(&mut stream, &tcpros::encode_header(&e)).await;
+                e.insert(
+                    "error".into(),
+                    format!("no adaptor for {} on {}", id.subscriber, id.topic),
+                );
+                let _ =
+                    tokio::io::AsyncWriteExt::write_all(&mut stream, &tcpros::encode_header(&e))
+                        .await;
                 return;
             };
             let edge = relay.edge.clone();
             drop(relay);
             // Wait for an upstream publisher's header to answer with its type.
             let mut rx = edge.header.subscribe();
-            let up: Option<Header> = match tokio::time::timeout(timeout, rx.wait_for(Option::is_some)).await {
-                Ok(Ok(r)) => r.clone(),
-                _ => None,
-            };
+            let up: Option<Header> =
+                match tokio::time::timeout(timeout, rx.wait_for(Option::is_some)).await {
+                    Ok(Ok(r)) => r.clone(),
+                    _ => None,
+                };
             let Some(up) = up else { return };
             let mut reply = Header::new();
-            for k in ["type", "md5sum", "message_definition", "latching", "callerid"] {
+            for k in [
+                "type",
+                "md5sum",
+                "message_definition",
+                "latching",
+                "callerid",
+            ] {
                 if let Some(v) = up.get(k) {
                     reply.insert(k.into(), v.clone());
                 }
@@ -290,8 +324,13 @@ pub async fn serve_tcpros(listener: TcpListener, relays: Relays, timeout: Durati
                 && want != have
             {
                 let mut e = Header::new();
-                e.insert("error".into(), format!("md5sum mismatch on {}: {want} vs {have}", id.topic));
-                let _ = tokio::io::AsyncWriteExt::write_all(&mut stream, &tcpros::encode_header(&e)).await;
+                e.insert(
+                    "error".into(),
+                    format!("md5sum mismatch on {}: {want} vs {have}", id.topic),
+                );
+                let _ =
+                    tokio::io::AsyncWriteExt::write_all(&mut stream, &tcpros::encode_header(&e))
+                        .await;
                 return;
             }
             if tokio::io::AsyncWriteExt::write_all(&mut stream, &tcpros::encode_header(&reply))
@@ -332,12 +371,22 @@ impl Handler for SlaveHandler {
             let ok = |v| Response::Ok(Value::ros(1, "", v));
             match call.method.as_str() {
                 "requestTopic" => {
-                    let wants_tcpros = call.params.get(2).and_then(Value::as_array).is_some_and(|ps| {
-                        ps.iter()
-                            .any(|p| p.as_array().and_then(|a| a.first()).and_then(Value::as_str) == Some("TCPROS"))
-                    });
+                    let wants_tcpros =
+                        call.params
+                            .get(2)
+                            .and_then(Value::as_array)
+                            .is_some_and(|ps| {
+                                ps.iter().any(|p| {
+                                    p.as_array().and_then(|a| a.first()).and_then(Value::as_str)
+                                        == Some("TCPROS")
+                                })
+                            });
                     if !wants_tcpros {
-                        return Response::Ok(Value::ros(0, "only TCPROS is supported", Value::Array(vec![])));
+                        return Response::Ok(Value::ros(
+                            0,
+                            "only TCPROS is supported",
+                            Value::Array(vec![]),
+                        ));
                     }
                     ok(Value::Array(vec![
                         Value::str("TCPROS"),
@@ -370,7 +419,9 @@ mod tests {
     fn run(input_hz: f64, rate: Option<f64>, secs: f64) -> f64 {
         let mut l = Limiter::default();
         let n = (input_hz * secs) as usize;
-        let passed = (0..n).filter(|i| l.admit(*i as f64 / input_hz, rate)).count();
+        let passed = (0..n)
+            .filter(|i| l.admit(*i as f64 / input_hz, rate))
+            .count();
         passed as f64 / secs
     }
 
@@ -413,7 +464,13 @@ mod tests {
         );
         e.set(AdaptorSetting { rate_hz: None });
         let names: Vec<String> = reg.gather().iter().map(|f| f.name().to_string()).collect();
-        assert!(names.contains(&"configbot_adaptor_rate_hz".to_string()), "{names:?}");
-        assert!(AdaptorMetrics::new(&reg).is_err(), "double registration is refused");
+        assert!(
+            names.contains(&"configbot_adaptor_rate_hz".to_string()),
+            "{names:?}"
+        );
+        assert!(
+            AdaptorMetrics::new(&reg).is_err(),
+            "double registration is refused"
+        );
     }
 }

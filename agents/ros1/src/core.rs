@@ -133,7 +133,13 @@ impl Core {
             match e {
                 Effect::Shutdown { api, reason } => {
                     tokio::spawn(async move {
-                        let _ = http::call(&api, "shutdown", &[Value::str(MASTER_CALLER_ID), Value::str(reason)], core.timeout).await;
+                        let _ = http::call(
+                            &api,
+                            "shutdown",
+                            &[Value::str(MASTER_CALLER_ID), Value::str(reason)],
+                            core.timeout,
+                        )
+                        .await;
                     });
                 }
                 Effect::PublisherUpdate { topic, subscriber } => {

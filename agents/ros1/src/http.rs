@@ -74,7 +74,8 @@ async fn dispatch<H: Handler>(h: Arc<H>, call: MethodCall) -> Response {
     for c in calls {
         let (method, params) = match c {
             Value::Struct(mut m) => (
-                m.remove("methodName").and_then(|v| v.as_str().map(String::from)),
+                m.remove("methodName")
+                    .and_then(|v| v.as_str().map(String::from)),
                 m.remove("params"),
             ),
             _ => (None, None),
@@ -158,7 +159,12 @@ pub fn parse_uri(uri: &str) -> Option<(String, u16, String)> {
 }
 
 /// Calls `method` on the XML-RPC server at `uri` and returns its value.
-pub async fn call(uri: &str, method: &str, params: &[Value], timeout: Duration) -> Result<Value, HttpError> {
+pub async fn call(
+    uri: &str,
+    method: &str,
+    params: &[Value],
+    timeout: Duration,
+) -> Result<Value, HttpError> {
     match tokio::time::timeout(timeout, call_inner(uri, method, params)).await {
         Ok(r) => r,
         Err(_) => Err(HttpError::Timeout {
@@ -175,7 +181,9 @@ async fn call_inner(uri: &str, method: &str, params: &[Value]) -> Result<Value, 
         method: method.into(),
         source,
     };
-    let mut s = TcpStream::connect((host.as_str(), port)).await.map_err(io)?;
+    let mut s = TcpStream::connect((host.as_str(), port))
+        .await
+        .map_err(io)?;
     let body = xmlrpc::encode_call(method, params);
     let req = format!(
         "POST {path} HTTP/1.1\r\nHost: {host}:{port}\r\nUser-Agent: configbot\r\nContent-Type: text/xml\r\nContent-Length: {}\r\nConnection: close\r\n\r\n{body}",
@@ -188,9 +196,12 @@ async fn call_inner(uri: &str, method: &str, params: &[Value]) -> Result<Value, 
         uri: uri.into(),
         method: method.into(),
     };
-    let split = buf.windows(4).position(|w| w == b"\r\n\r\n").ok_or_else(bad)?;
+    let split = buf
+        .windows(4)
+        .position(|w| w == b"\r\n\r\n")
+        .ok_or_else(bad)?;
     let head = String::from_utf8_lossy(&buf[..split]);
-    if !head.split_whitespace().nth(1).is_some_and(|c| c == "200") {
+    if head.split_whitespace().nth(1).is_none_or(|c| c != "200") {
         return Err(bad());
     }
     let text = String::from_utf8_lossy(&buf[split + 4..]);
@@ -239,7 +250,10 @@ mod tests {
 
     #[test]
     fn parses_uris() {
-        assert_eq!(parse_uri("http://localhost:11311/"), Some(("localhost".into(), 11311, "/".into())));
+        assert_eq!(
+            parse_uri("http://localhost:11311/"),
+            Some(("localhost".into(), 11311, "/".into()))
+        );
         assert_eq!(parse_uri("http://h:1"), Some(("h".into(), 1, "/".into())));
         assert_eq!(parse_uri("rosrpc://h:1"), None);
     }
@@ -250,7 +264,9 @@ mod tests {
         let srv = tokio::spawn(serve(l, Arc::new(Echo)));
         let uri = format!("http://127.0.0.1:{}/", addr.port());
         let t = Duration::from_secs(5);
-        let v = call(&uri, "x", &[Value::Int(1), Value::str("a")], t).await.unwrap();
+        let v = call(&uri, "x", &[Value::Int(1), Value::str("a")], t)
+            .await
+            .unwrap();
         assert_eq!(v, Value::Array(vec![Value::Int(1), Value::str("a")]));
         let err = call(&uri, "fail", &[], t).await.unwrap_err();
         assert!(matches!(err, HttpError::Fault { code: 7, .. }), "{err}");
@@ -260,9 +276,14 @@ mod tests {
             s.insert("params".to_string(), Value::Array(vec![Value::Int(2)]));
             Value::Struct(s)
         };
-        let v = call(&uri, "system.multicall", &[Value::Array(vec![entry("x"), entry("fail")])], t)
-            .await
-            .unwrap();
+        let v = call(
+            &uri,
+            "system.multicall",
+            &[Value::Array(vec![entry("x"), entry("fail")])],
+            t,
+        )
+        .await
+        .unwrap();
         let a = v.as_array().unwrap();
         assert_eq!(a[0], Value::Array(vec![Value::Array(vec![Value::Int(2)])]));
         assert!(matches!(&a[1], Value::Struct(m) if m.contains_key("faultCode")));

@@ -23,13 +23,14 @@ use std::time::Duration;
 
 use configbot_dataplane::policy::{AppOf, PolicyConfig};
 use configbot_dataplane::{
-    AdaptorSetting, DataPlane, DataPlaneError, EdgeCounters, EdgeId, Graph, GraphEvent, NodeInfo, TopicInfo, TopicStats,
+    AdaptorSetting, DataPlane, DataPlaneError, EdgeCounters, EdgeId, Graph, GraphEvent, NodeInfo,
+    TopicInfo, TopicStats,
 };
 use tokio::sync::{Notify, broadcast};
 use tokio::task::JoinHandle;
 
-pub use crate::core::{MASTER_CALLER_ID, Placement};
 use crate::core::{Core, lock};
+pub use crate::core::{MASTER_CALLER_ID, Placement};
 use crate::state::{Effect, MasterState};
 use crate::xmlrpc::Value;
 
@@ -150,17 +151,23 @@ impl Ros1DataPlane {
     /// Opens the database at `db_path`, restores and verifies the persisted
     /// graph, and starts the master, adaptor servers and graph monitor.
     /// Adaptor metrics go to `registry`. Must run inside a tokio runtime.
-    pub async fn start(config: Ros1Config, db_path: &Path, registry: &prometheus::Registry) -> Result<Self, Ros1Error> {
-        let (_, port, _) =
-            http::parse_uri(&config.master_uri).ok_or_else(|| Ros1Error::BadMasterUri(config.master_uri.clone()))?;
+    pub async fn start(
+        config: Ros1Config,
+        db_path: &Path,
+        registry: &prometheus::Registry,
+    ) -> Result<Self, Ros1Error> {
+        let (_, port, _) = http::parse_uri(&config.master_uri)
+            .ok_or_else(|| Ros1Error::BadMasterUri(config.master_uri.clone()))?;
         let bind = |what, port: u16| {
             let host = config.bind_host.clone();
             async move {
-                http::bind(&host, port).await.map_err(|source| Ros1Error::Bind {
-                    what,
-                    addr: format!("{host}:{port}"),
-                    source,
-                })
+                http::bind(&host, port)
+                    .await
+                    .map_err(|source| Ros1Error::Bind {
+                        what,
+                        addr: format!("{host}:{port}"),
+                        source,
+                    })
             }
         };
         let (master_l, master_addr) = bind("master", port).await?;
@@ -178,7 +185,10 @@ impl Ros1DataPlane {
             adaptor_uri,
             relays: Arc::new(Mutex::new(BTreeMap::new())),
             settings: Mutex::new(settings),
-            placement: config.placement.clone().unwrap_or_else(|| Arc::new(|_: &EdgeId, _: &[String]| false)),
+            placement: config
+                .placement
+                .clone()
+                .unwrap_or_else(|| Arc::new(|_: &EdgeId, _: &[String]| false)),
             metrics,
             meters: Mutex::new(BTreeMap::new()),
             meter_window_s: config.meter_window.as_secs_f64(),
@@ -186,7 +196,10 @@ impl Ros1DataPlane {
             timeout: config.call_timeout,
         });
         let mut tasks = vec![
-            tokio::spawn(http::serve(master_l, Arc::new(master::MasterHandler { core: core.clone() }))),
+            tokio::spawn(http::serve(
+                master_l,
+                Arc::new(master::MasterHandler { core: core.clone() }),
+            )),
             tokio::spawn(http::serve(
                 slave_l,
                 Arc::new(adaptor::SlaveHandler {
@@ -195,7 +208,11 @@ impl Ros1DataPlane {
                     tcpros_port: tcp_addr.port(),
                 }),
             )),
-            tokio::spawn(adaptor::serve_tcpros(tcp_l, core.relays.clone(), config.call_timeout)),
+            tokio::spawn(adaptor::serve_tcpros(
+                tcp_l,
+                core.relays.clone(),
+                config.call_timeout,
+            )),
         ];
         let pids = Arc::new(Mutex::new(BTreeMap::new()));
         restore(&core, state, &pids).await;
@@ -233,8 +250,16 @@ impl Ros1DataPlane {
 
 /// Loads the persisted state, keeps the nodes that still answer getPid, and
 /// points adapted subscribers at the new adaptor endpoint.
-async fn restore(core: &Arc<Core>, state: MasterState, pids: &Mutex<BTreeMap<(String, String), u32>>) {
-    let nodes: Vec<(String, String)> = state.nodes.iter().map(|(n, a)| (n.clone(), a.clone())).collect();
+async fn restore(
+    core: &Arc<Core>,
+    state: MasterState,
+    pids: &Mutex<BTreeMap<(String, String), u32>>,
+) {
+    let nodes: Vec<(String, String)> = state
+        .nodes
+        .iter()
+        .map(|(n, a)| (n.clone(), a.clone()))
+        .collect();
     *lock(&core.state) = state;
     let answers = get_pids(&nodes, core.timeout).await;
     let mut fx = Vec::new();
@@ -255,7 +280,11 @@ async fn restore(core: &Arc<Core>, state: MasterState, pids: &Mutex<BTreeMap<(St
     {
         let st = lock(&core.state);
         for id in adapted {
-            if st.subscribers.get(&id.topic).is_some_and(|s| s.contains(&id.subscriber)) {
+            if st
+                .subscribers
+                .get(&id.topic)
+                .is_some_and(|s| s.contains(&id.subscriber))
+            {
                 fx.push(Effect::PublisherUpdate {
                     topic: id.topic,
                     subscriber: id.subscriber,
@@ -272,7 +301,9 @@ async fn get_pids(nodes: &[(String, String)], timeout: Duration) -> Vec<Option<u
         .map(|(_, api)| {
             let api = api.clone();
             tokio::spawn(async move {
-                let v = http::call(&api, "getPid", &[Value::str(MASTER_CALLER_ID)], timeout).await.ok()?;
+                let v = http::call(&api, "getPid", &[Value::str(MASTER_CALLER_ID)], timeout)
+                    .await
+                    .ok()?;
                 let a = v.as_array()?;
                 (a.first()?.as_i64()? == 1).then_some(())?;
                 u32::try_from(a.get(2)?.as_i64()?).ok()
@@ -330,7 +361,11 @@ async fn monitor(
             .collect();
         let todo: Vec<(String, String)> = {
             let p = lock(&pids);
-            nodes.iter().filter(|k| full || !p.contains_key(*k)).cloned().collect()
+            nodes
+                .iter()
+                .filter(|k| full || !p.contains_key(*k))
+                .cloned()
+                .collect()
         };
         let answers = get_pids(&todo, core.timeout).await;
         {
@@ -406,8 +441,10 @@ impl DataPlane for Ros1DataPlane {
     }
 
     fn adaptor_counters(&self) -> BTreeMap<EdgeId, EdgeCounters> {
-        let mut out: BTreeMap<EdgeId, EdgeCounters> =
-            lock(&self.core.settings).keys().map(|k| (k.clone(), EdgeCounters::default())).collect();
+        let mut out: BTreeMap<EdgeId, EdgeCounters> = lock(&self.core.settings)
+            .keys()
+            .map(|k| (k.clone(), EdgeCounters::default()))
+            .collect();
         for (k, r) in lock(&self.core.relays).iter() {
             out.insert(k.clone(), r.edge.counters());
         }

@@ -20,8 +20,16 @@ pub(crate) struct MasterHandler {
 fn arg(p: &[Value], i: usize, what: &str) -> Result<String, Value> {
     match p.get(i) {
         Some(Value::Str(s)) => Ok(s.clone()),
-        Some(other) => Err(Value::ros(-1, format!("parameter {what} must be a string, got {other:?}"), Value::Int(0))),
-        None => Err(Value::ros(-1, format!("missing parameter {what}"), Value::Int(0))),
+        Some(other) => Err(Value::ros(
+            -1,
+            format!("parameter {what} must be a string, got {other:?}"),
+            Value::Int(0),
+        )),
+        None => Err(Value::ros(
+            -1,
+            format!("missing parameter {what}"),
+            Value::Int(0),
+        )),
     }
 }
 
@@ -59,7 +67,10 @@ impl MasterHandler {
                 let sub = arg(p, 1, "subgraph").unwrap_or_default();
                 ok("current topics", lock(&core.state).published_topics(&sub))
             }
-            "getTopicTypes" => ok("current system topic types", lock(&core.state).topic_types_value()),
+            "getTopicTypes" => ok(
+                "current system topic types",
+                lock(&core.state).topic_types_value(),
+            ),
             "registerPublisher" => {
                 let topic = params::resolve(&arg(p, 1, "topic")?, &caller);
                 let (ty, api) = (arg(p, 2, "topic_type")?, arg(p, 3, "caller_api")?);
@@ -125,7 +136,10 @@ impl MasterHandler {
                 core.persist();
                 core.run_effects(fx);
                 core.wake.notify_one();
-                ok(format!("Registered [{caller}] as provider of [{service}]"), Value::Int(1))
+                ok(
+                    format!("Registered [{caller}] as provider of [{service}]"),
+                    Value::Int(1),
+                )
             }
             "unregisterService" => {
                 let service = params::resolve(&arg(p, 1, "service")?, &caller);
@@ -151,7 +165,14 @@ impl MasterHandler {
         let r = match method {
             "getParamNames" => ok(
                 "Parameter names",
-                Value::Array(lock(&core.state).params.names().into_iter().map(Value::Str).collect()),
+                Value::Array(
+                    lock(&core.state)
+                        .params
+                        .names()
+                        .into_iter()
+                        .map(Value::Str)
+                        .collect(),
+                ),
             ),
             "setParam" => {
                 let key = params::resolve(&arg(p, 1, "key")?, caller);
@@ -191,7 +212,11 @@ impl MasterHandler {
                 let key = arg(p, 1, "key")?;
                 match lock(&core.state).params.search(caller, &key) {
                     Some(found) => ok(format!("Found [{found}]"), Value::Str(found)),
-                    None => Value::ros(-1, format!("Cannot find parameter [{key}] in an upwards search"), Value::str("")),
+                    None => Value::ros(
+                        -1,
+                        format!("Cannot find parameter [{key}] in an upwards search"),
+                        Value::str(""),
+                    ),
                 }
             }
             "subscribeParam" => {

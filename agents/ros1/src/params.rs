@@ -17,9 +17,13 @@ pub fn resolve(name: &str, caller_id: &str) -> String {
     } else {
         let ns = namespace_of(caller_id);
         let name = name.strip_prefix('~').map_or(name.to_string(), |rest| {
-            return format!("{}/{rest}", caller_id.trim_end_matches('/'));
+            format!("{}/{rest}", caller_id.trim_end_matches('/'))
         });
-        if name.starts_with('/') { name } else { format!("{ns}{name}") }
+        if name.starts_with('/') {
+            name
+        } else {
+            format!("{ns}{name}")
+        }
     };
     canonical(&full)
 }
@@ -82,7 +86,9 @@ impl ParamTree {
         };
         let mut cur = &mut self.root;
         for s in path {
-            let e = cur.entry((*s).to_string()).or_insert_with(|| Value::Struct(BTreeMap::new()));
+            let e = cur
+                .entry((*s).to_string())
+                .or_insert_with(|| Value::Struct(BTreeMap::new()));
             if !matches!(e, Value::Struct(_)) {
                 *e = Value::Struct(BTreeMap::new());
             }
@@ -182,7 +188,9 @@ mod tests {
         t.set("/a/b", Value::Int(1));
         t.set("/a/c", Value::str("x"));
         assert_eq!(t.get("/a/b"), Some(Value::Int(1)));
-        let Some(Value::Struct(a)) = t.get("/a") else { panic!() };
+        let Some(Value::Struct(a)) = t.get("/a") else {
+            panic!()
+        };
         assert_eq!(a.len(), 2);
         assert_eq!(t.names(), vec!["/a/b", "/a/c"]);
         // a struct replaces the namespace
@@ -206,9 +214,15 @@ mod tests {
         t.set("/robot/rate", Value::Int(1));
         t.set("/rate", Value::Int(2));
         t.set("/robot/arm/x", Value::Int(3));
-        assert_eq!(t.search("/robot/arm/node", "rate").as_deref(), Some("/robot/rate"));
+        assert_eq!(
+            t.search("/robot/arm/node", "rate").as_deref(),
+            Some("/robot/rate")
+        );
         assert_eq!(t.search("/other/node", "rate").as_deref(), Some("/rate"));
-        assert_eq!(t.search("/robot/arm/node", "arm/x").as_deref(), Some("/robot/arm/x"));
+        assert_eq!(
+            t.search("/robot/arm/node", "arm/x").as_deref(),
+            Some("/robot/arm/x")
+        );
         assert_eq!(t.search("/n", "missing"), None);
     }
 

@@ -18,7 +18,11 @@ pub enum Effect {
     /// Send `subscriber` the current publisher list of `topic`.
     PublisherUpdate { topic: String, subscriber: String },
     /// Send `node` the new value of subscribed parameter `key`.
-    ParamUpdate { node: String, key: String, value: Value },
+    ParamUpdate {
+        node: String,
+        key: String,
+        value: Value,
+    },
 }
 
 /// Registrations and parameters.
@@ -40,7 +44,9 @@ pub struct MasterState {
 }
 
 fn remove_from(map: &mut BTreeMap<String, BTreeSet<String>>, key: &str, node: &str) -> bool {
-    let Some(set) = map.get_mut(key) else { return false };
+    let Some(set) = map.get_mut(key) else {
+        return false;
+    };
     let removed = set.remove(node);
     if set.is_empty() {
         map.remove(key);
@@ -75,21 +81,37 @@ impl MasterState {
         if msg_type != "*" && !msg_type.is_empty() {
             self.topic_types.insert(topic.into(), msg_type.into());
         } else {
-            self.topic_types.entry(topic.into()).or_insert_with(|| "*".into());
+            self.topic_types
+                .entry(topic.into())
+                .or_insert_with(|| "*".into());
         }
     }
 
     /// registerPublisher → (subscriber APIs, effects).
-    pub fn register_publisher(&mut self, node: &str, api: &str, topic: &str, msg_type: &str) -> (Vec<String>, Vec<Effect>) {
+    pub fn register_publisher(
+        &mut self,
+        node: &str,
+        api: &str,
+        topic: &str,
+        msg_type: &str,
+    ) -> (Vec<String>, Vec<Effect>) {
         let mut fx = self.register_node(node, api);
         self.note_type(topic, msg_type);
-        self.publishers.entry(topic.into()).or_default().insert(node.into());
+        self.publishers
+            .entry(topic.into())
+            .or_default()
+            .insert(node.into());
         fx.extend(self.updates_for(topic));
         (self.apis(self.subscribers.get(topic)), fx)
     }
 
     /// unregisterPublisher → (number removed, effects).
-    pub fn unregister_publisher(&mut self, node: &str, api: &str, topic: &str) -> (i64, Vec<Effect>) {
+    pub fn unregister_publisher(
+        &mut self,
+        node: &str,
+        api: &str,
+        topic: &str,
+    ) -> (i64, Vec<Effect>) {
         if self.nodes.get(node).is_some_and(|a| a != api) {
             return (0, Vec::new());
         }
@@ -102,11 +124,24 @@ impl MasterState {
     }
 
     /// registerSubscriber → (publisher nodes, effects).
-    pub fn register_subscriber(&mut self, node: &str, api: &str, topic: &str, msg_type: &str) -> (Vec<String>, Vec<Effect>) {
+    pub fn register_subscriber(
+        &mut self,
+        node: &str,
+        api: &str,
+        topic: &str,
+        msg_type: &str,
+    ) -> (Vec<String>, Vec<Effect>) {
         let fx = self.register_node(node, api);
         self.note_type(topic, msg_type);
-        self.subscribers.entry(topic.into()).or_default().insert(node.into());
-        let pubs = self.publishers.get(topic).map(|s| s.iter().cloned().collect()).unwrap_or_default();
+        self.subscribers
+            .entry(topic.into())
+            .or_default()
+            .insert(node.into());
+        let pubs = self
+            .publishers
+            .get(topic)
+            .map(|s| s.iter().cloned().collect())
+            .unwrap_or_default();
         (pubs, fx)
     }
 
@@ -119,9 +154,16 @@ impl MasterState {
         n
     }
 
-    pub fn register_service(&mut self, node: &str, api: &str, service: &str, service_api: &str) -> Vec<Effect> {
+    pub fn register_service(
+        &mut self,
+        node: &str,
+        api: &str,
+        service: &str,
+        service_api: &str,
+    ) -> Vec<Effect> {
         let fx = self.register_node(node, api);
-        self.services.insert(service.into(), (node.into(), service_api.into()));
+        self.services
+            .insert(service.into(), (node.into(), service_api.into()));
         fx
     }
 
@@ -202,17 +244,28 @@ impl MasterState {
         let list = |m: &BTreeMap<String, BTreeSet<String>>| {
             Value::Array(
                 m.iter()
-                    .map(|(t, ns)| Value::Array(vec![Value::str(t), Value::Array(ns.iter().map(Value::str).collect())]))
+                    .map(|(t, ns)| {
+                        Value::Array(vec![
+                            Value::str(t),
+                            Value::Array(ns.iter().map(Value::str).collect()),
+                        ])
+                    })
                     .collect(),
             )
         };
         let services = Value::Array(
             self.services
                 .iter()
-                .map(|(s, (n, _))| Value::Array(vec![Value::str(s), Value::Array(vec![Value::str(n)])]))
+                .map(|(s, (n, _))| {
+                    Value::Array(vec![Value::str(s), Value::Array(vec![Value::str(n)])])
+                })
                 .collect(),
         );
-        Value::Array(vec![list(&self.publishers), list(&self.subscribers), services])
+        Value::Array(vec![
+            list(&self.publishers),
+            list(&self.subscribers),
+            services,
+        ])
     }
 
     /// getPublishedTopics: `[[topic, type]]` of topics with publishers under
@@ -260,7 +313,10 @@ impl MasterState {
     fn param_effects(&self, key: &str) -> Vec<Effect> {
         let mut fx = Vec::new();
         for k in params::affected(key, self.param_subscribers.keys()) {
-            let value = self.params.get(&k).unwrap_or(Value::Struct(BTreeMap::new()));
+            let value = self
+                .params
+                .get(&k)
+                .unwrap_or(Value::Struct(BTreeMap::new()));
             for n in self.param_subscribers.get(&k).into_iter().flatten() {
                 fx.push(Effect::ParamUpdate {
                     node: n.clone(),
@@ -275,8 +331,16 @@ impl MasterState {
     /// subscribeParam → current value (`{}` when unset).
     pub fn subscribe_param(&mut self, node: &str, api: &str, key: &str) -> (Value, Vec<Effect>) {
         let fx = self.register_node(node, api);
-        self.param_subscribers.entry(key.into()).or_default().insert(node.into());
-        (self.params.get(key).unwrap_or(Value::Struct(BTreeMap::new())), fx)
+        self.param_subscribers
+            .entry(key.into())
+            .or_default()
+            .insert(node.into());
+        (
+            self.params
+                .get(key)
+                .unwrap_or(Value::Struct(BTreeMap::new())),
+            fx,
+        )
     }
 
     pub fn unsubscribe_param(&mut self, node: &str, key: &str) -> i64 {
@@ -307,9 +371,15 @@ mod tests {
         assert_eq!(s.publisher_apis("/chatter"), vec!["http://t:1/"]);
         let (n, fx) = s.unregister_publisher("/t", "http://t:1/", "/chatter");
         assert_eq!((n, fx.len()), (1, 1));
-        assert!(!s.nodes.contains_key("/t"), "node without registrations is forgotten");
+        assert!(
+            !s.nodes.contains_key("/t"),
+            "node without registrations is forgotten"
+        );
         // wrong api: ignored
-        assert_eq!(s.unregister_subscriber("/l", "http://other/", "/chatter"), 0);
+        assert_eq!(
+            s.unregister_subscriber("/l", "http://other/", "/chatter"),
+            0
+        );
         assert_eq!(s.unregister_subscriber("/l", "http://l:1/", "/chatter"), 1);
         assert!(s.nodes.is_empty());
     }
@@ -324,7 +394,9 @@ mod tests {
             api: "http://old/".into(),
             reason: "new node registered with same name /t".into()
         }));
-        assert!(fx.iter().any(|e| matches!(e, Effect::PublisherUpdate { subscriber, .. } if subscriber == "/l")));
+        assert!(fx.iter().any(
+            |e| matches!(e, Effect::PublisherUpdate { subscriber, .. } if subscriber == "/l")
+        ));
         assert!(!s.publishers.contains_key("/a"));
         assert_eq!(s.nodes["/t"], "http://new/");
     }
@@ -335,11 +407,16 @@ mod tests {
         s.register_publisher("/t", "http://t/", "/ns/a", "x/Y");
         s.register_subscriber("/l", "http://l/", "/b", "*");
         s.register_service("/t", "http://t/", "/srv", "rosrpc://t:1");
-        let Value::Array(st) = s.system_state() else { panic!() };
+        let Value::Array(st) = s.system_state() else {
+            panic!()
+        };
         assert_eq!(st.len(), 3);
         assert_eq!(
             s.published_topics("/ns"),
-            Value::Array(vec![Value::Array(vec![Value::str("/ns/a"), Value::str("x/Y")])])
+            Value::Array(vec![Value::Array(vec![
+                Value::str("/ns/a"),
+                Value::str("x/Y")
+            ])])
         );
         assert_eq!(s.published_topics("/other"), Value::Array(vec![]));
         assert_eq!(s.type_of("/b"), "*");
@@ -353,7 +430,9 @@ mod tests {
         assert_eq!(v, Value::Struct(BTreeMap::new()));
         let fx = s.set_param("/a/b", Value::Int(1));
         assert_eq!(fx.len(), 1);
-        let Effect::ParamUpdate { key, value, .. } = &fx[0] else { panic!() };
+        let Effect::ParamUpdate { key, value, .. } = &fx[0] else {
+            panic!()
+        };
         assert_eq!(key, "/a/");
         assert!(matches!(value, Value::Struct(m) if m.get("b") == Some(&Value::Int(1))));
         assert!(s.set_param("/z", Value::Int(1)).is_empty());

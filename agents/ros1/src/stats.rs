@@ -29,7 +29,11 @@ impl RateWindow {
     }
 
     fn trim(&mut self, now: f64) {
-        while self.samples.front().is_some_and(|(t, _)| now - t > self.window_s) {
+        while self
+            .samples
+            .front()
+            .is_some_and(|(t, _)| now - t > self.window_s)
+        {
             self.samples.pop_front();
         }
     }

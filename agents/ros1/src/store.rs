@@ -52,8 +52,10 @@ impl Store {
             source,
         };
         let conn = Connection::open(path).map_err(err)?;
-        conn.pragma_update(None, "journal_mode", "WAL").map_err(err)?;
-        conn.pragma_update(None, "synchronous", "NORMAL").map_err(err)?;
+        conn.pragma_update(None, "journal_mode", "WAL")
+            .map_err(err)?;
+        conn.pragma_update(None, "synchronous", "NORMAL")
+            .map_err(err)?;
         conn.execute_batch(SCHEMA).map_err(err)?;
         Ok(Self {
             conn,
@@ -83,14 +85,22 @@ impl Store {
         tx.execute_batch("DELETE FROM nodes; DELETE FROM registrations; DELETE FROM topic_types;")
             .map_err(err)?;
         {
-            let mut n = tx.prepare("INSERT INTO nodes (name, api) VALUES (?1, ?2)").map_err(err)?;
+            let mut n = tx
+                .prepare("INSERT INTO nodes (name, api) VALUES (?1, ?2)")
+                .map_err(err)?;
             for (name, api) in &s.nodes {
                 n.execute(params![name, api]).map_err(err)?;
             }
             let mut r = tx
-                .prepare("INSERT INTO registrations (kind, name, node, api) VALUES (?1, ?2, ?3, ?4)")
+                .prepare(
+                    "INSERT INTO registrations (kind, name, node, api) VALUES (?1, ?2, ?3, ?4)",
+                )
                 .map_err(err)?;
-            for (kind, map) in [("pub", &s.publishers), ("sub", &s.subscribers), ("param", &s.param_subscribers)] {
+            for (kind, map) in [
+                ("pub", &s.publishers),
+                ("sub", &s.subscribers),
+                ("param", &s.param_subscribers),
+            ] {
                 for (name, nodes) in map {
                     for node in nodes {
                         r.execute(params![kind, name, node, ""]).map_err(err)?;
@@ -100,13 +110,18 @@ impl Store {
             for (name, (node, api)) in &s.services {
                 r.execute(params!["srv", name, node, api]).map_err(err)?;
             }
-            let mut t = tx.prepare("INSERT INTO topic_types (topic, type) VALUES (?1, ?2)").map_err(err)?;
+            let mut t = tx
+                .prepare("INSERT INTO topic_types (topic, type) VALUES (?1, ?2)")
+                .map_err(err)?;
             for (topic, ty) in &s.topic_types {
                 t.execute(params![topic, ty]).map_err(err)?;
             }
         }
-        tx.execute("INSERT OR REPLACE INTO params (id, tree) VALUES (1, ?1)", params![tree])
-            .map_err(err)?;
+        tx.execute(
+            "INSERT OR REPLACE INTO params (id, tree) VALUES (1, ?1)",
+            params![tree],
+        )
+        .map_err(err)?;
         tx.commit().map_err(err)
     }
 
@@ -114,7 +129,10 @@ impl Store {
     pub fn load(&self) -> Result<MasterState, StoreError> {
         let err = |e| self.err(e);
         let mut s = MasterState::default();
-        let mut q = self.conn.prepare("SELECT name, api FROM nodes").map_err(err)?;
+        let mut q = self
+            .conn
+            .prepare("SELECT name, api FROM nodes")
+            .map_err(err)?;
         let rows = q
             .query_map([], |r| Ok((r.get::<_, String>(0)?, r.get::<_, String>(1)?)))
             .map_err(err)?;
@@ -122,7 +140,10 @@ impl Store {
             let (n, a) = row.map_err(err)?;
             s.nodes.insert(n, a);
         }
-        let mut q = self.conn.prepare("SELECT kind, name, node, api FROM registrations").map_err(err)?;
+        let mut q = self
+            .conn
+            .prepare("SELECT kind, name, node, api FROM registrations")
+            .map_err(err)?;
         let rows = q
             .query_map([], |r| {
                 Ok((
@@ -151,7 +172,10 @@ impl Store {
                 _ => {}
             }
         }
-        let mut q = self.conn.prepare("SELECT topic, type FROM topic_types").map_err(err)?;
+        let mut q = self
+            .conn
+            .prepare("SELECT topic, type FROM topic_types")
+            .map_err(err)?;
         let rows = q
             .query_map([], |r| Ok((r.get::<_, String>(0)?, r.get::<_, String>(1)?)))
             .map_err(err)?;
@@ -171,16 +195,20 @@ impl Store {
             )
             .map_err(err)?;
         if let Some(t) = tree {
-            s.params = serde_json::from_str::<ParamTree>(&t).map_err(|source| StoreError::Json {
-                path: self.path.clone(),
-                source,
-            })?;
+            s.params =
+                serde_json::from_str::<ParamTree>(&t).map_err(|source| StoreError::Json {
+                    path: self.path.clone(),
+                    source,
+                })?;
         }
         Ok(s)
     }
 
     /// Replaces the stored adaptor settings.
-    pub fn save_adaptors(&mut self, a: &BTreeMap<EdgeId, AdaptorSetting>) -> Result<(), StoreError> {
+    pub fn save_adaptors(
+        &mut self,
+        a: &BTreeMap<EdgeId, AdaptorSetting>,
+    ) -> Result<(), StoreError> {
         let path = self.path.clone();
         let err = |source| StoreError::Sqlite {
             path: path.clone(),
@@ -193,7 +221,8 @@ impl Store {
                 .prepare("INSERT INTO adaptors (topic, subscriber, rate_hz) VALUES (?1, ?2, ?3)")
                 .map_err(err)?;
             for (e, s) in a {
-                q.execute(params![e.topic, e.subscriber, s.rate_hz]).map_err(err)?;
+                q.execute(params![e.topic, e.subscriber, s.rate_hz])
+                    .map_err(err)?;
             }
         }
         tx.commit().map_err(err)
@@ -202,7 +231,10 @@ impl Store {
     /// Loads the stored adaptor settings.
     pub fn load_adaptors(&self) -> Result<BTreeMap<EdgeId, AdaptorSetting>, StoreError> {
         let err = |e| self.err(e);
-        let mut q = self.conn.prepare("SELECT topic, subscriber, rate_hz FROM adaptors").map_err(err)?;
+        let mut q = self
+            .conn
+            .prepare("SELECT topic, subscriber, rate_hz FROM adaptors")
+            .map_err(err)?;
         let rows = q
             .query_map([], |r| {
                 Ok((
@@ -239,7 +271,9 @@ mod tests {
                 topic: "/a".into(),
                 subscriber: "/l".into(),
             },
-            AdaptorSetting { rate_hz: Some(20.0) },
+            AdaptorSetting {
+                rate_hz: Some(20.0),
+            },
         );
         {
             let mut st = Store::open(&path).unwrap();

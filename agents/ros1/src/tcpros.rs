@@ -35,7 +35,11 @@ pub enum TcprosError {
         source: http::HttpError,
     },
     #[error("publisher {api} refused topic {topic}: {reason}")]
-    Refused { api: String, topic: String, reason: String },
+    Refused {
+        api: String,
+        topic: String,
+        reason: String,
+    },
     #[error("bad tcpros header or frame from {peer}: {what}")]
     Protocol { peer: String, what: String },
 }
@@ -48,7 +52,10 @@ pub fn encode_header(h: &Header) -> Vec<u8> {
         body.extend_from_slice(&u32::try_from(f.len()).unwrap_or(u32::MAX).to_le_bytes());
         body.extend_from_slice(f.as_bytes());
     }
-    let mut out = u32::try_from(body.len()).unwrap_or(u32::MAX).to_le_bytes().to_vec();
+    let mut out = u32::try_from(body.len())
+        .unwrap_or(u32::MAX)
+        .to_le_bytes()
+        .to_vec();
     out.extend(body);
     out
 }
@@ -66,7 +73,9 @@ pub fn decode_header(mut b: &[u8]) -> Result<Header, String> {
             return Err(format!("field length {n} beyond header"));
         }
         let f = String::from_utf8_lossy(&b[..n]);
-        let (k, v) = f.split_once('=').ok_or_else(|| format!("field without '=': {f:?}"))?;
+        let (k, v) = f
+            .split_once('=')
+            .ok_or_else(|| format!("field without '=': {f:?}"))?;
         h.insert(k.to_string(), v.to_string());
         b = &b[n..];
     }
@@ -74,7 +83,10 @@ pub fn decode_header(mut b: &[u8]) -> Result<Header, String> {
 }
 
 /// Reads one u32-length-prefixed block (header or message frame).
-pub async fn read_block<R: AsyncRead + Unpin>(r: &mut R, peer: &str) -> Result<Vec<u8>, TcprosError> {
+pub async fn read_block<R: AsyncRead + Unpin>(
+    r: &mut R,
+    peer: &str,
+) -> Result<Vec<u8>, TcprosError> {
     let io = |source| TcprosError::Io {
         peer: peer.into(),
         source,
@@ -94,13 +106,23 @@ pub async fn read_block<R: AsyncRead + Unpin>(r: &mut R, peer: &str) -> Result<V
 }
 
 /// Reads and decodes a header.
-pub async fn read_header<R: AsyncRead + Unpin>(r: &mut R, peer: &str) -> Result<Header, TcprosError> {
+pub async fn read_header<R: AsyncRead + Unpin>(
+    r: &mut R,
+    peer: &str,
+) -> Result<Header, TcprosError> {
     let b = read_block(r, peer).await?;
-    decode_header(&b).map_err(|what| TcprosError::Protocol { peer: peer.into(), what })
+    decode_header(&b).map_err(|what| TcprosError::Protocol {
+        peer: peer.into(),
+        what,
+    })
 }
 
 /// Writes one message frame (length prefix + payload).
-pub async fn write_frame<W: AsyncWrite + Unpin>(w: &mut W, payload: &[u8], peer: &str) -> Result<(), TcprosError> {
+pub async fn write_frame<W: AsyncWrite + Unpin>(
+    w: &mut W,
+    payload: &[u8],
+    peer: &str,
+) -> Result<(), TcprosError> {
     let io = |source| TcprosError::Io {
         peer: peer.into(),
         source,
@@ -125,15 +147,26 @@ pub struct SubConn {
 
 /// Asks publisher `api` for `topic` and completes the TCPROS handshake as
 /// `caller_id`, with md5sum `*` (accepts any type) and type `msg_type`.
-pub async fn subscribe(api: &str, caller_id: &str, topic: &str, msg_type: &str, timeout: Duration) -> Result<SubConn, TcprosError> {
+pub async fn subscribe(
+    api: &str,
+    caller_id: &str,
+    topic: &str,
+    msg_type: &str,
+    timeout: Duration,
+) -> Result<SubConn, TcprosError> {
     let protos = Value::Array(vec![Value::Array(vec![Value::str("TCPROS")])]);
-    let v = http::call(api, "requestTopic", &[Value::str(caller_id), Value::str(topic), protos], timeout)
-        .await
-        .map_err(|source| TcprosError::Request {
-            api: api.into(),
-            topic: topic.into(),
-            source,
-        })?;
+    let v = http::call(
+        api,
+        "requestTopic",
+        &[Value::str(caller_id), Value::str(topic), protos],
+        timeout,
+    )
+    .await
+    .map_err(|source| TcprosError::Request {
+        api: api.into(),
+        topic: topic.into(),
+        source,
+    })?;
     let refused = |reason: String| TcprosError::Refused {
         api: api.into(),
         topic: topic.into(),
@@ -141,9 +174,14 @@ pub async fn subscribe(api: &str, caller_id: &str, topic: &str, msg_type: &str, 
     };
     let a = v.as_array().ok_or_else(|| refused("bad reply".into()))?;
     if a.first().and_then(Value::as_i64) != Some(1) {
-        return Err(refused(a.get(1).and_then(Value::as_str).unwrap_or("").to_string()));
+        return Err(refused(
+            a.get(1).and_then(Value::as_str).unwrap_or("").to_string(),
+        ));
     }
-    let proto = a.get(2).and_then(Value::as_array).ok_or_else(|| refused("no protocol".into()))?;
+    let proto = a
+        .get(2)
+        .and_then(Value::as_array)
+        .ok_or_else(|| refused("no protocol".into()))?;
     let (Some("TCPROS"), Some(host), Some(port)) = (
         proto.first().and_then(Value::as_str),
         proto.get(1).and_then(Value::as_str),
@@ -175,7 +213,11 @@ pub async fn subscribe(api: &str, caller_id: &str, topic: &str, msg_type: &str, 
     if let Some(e) = header.get("error") {
         return Err(refused(e.clone()));
     }
-    Ok(SubConn { stream, header, peer })
+    Ok(SubConn {
+        stream,
+        header,
+        peer,
+    })
 }
 
 #[cfg(test)]
@@ -188,7 +230,10 @@ mod tests {
         h.insert("callerid".into(), "/a".into());
         h.insert("message_definition".into(), "string data\n# x=y".into());
         let b = encode_header(&h);
-        assert_eq!(u32::from_le_bytes([b[0], b[1], b[2], b[3]]) as usize, b.len() - 4);
+        assert_eq!(
+            u32::from_le_bytes([b[0], b[1], b[2], b[3]]) as usize,
+            b.len() - 4
+        );
         assert_eq!(decode_header(&b[4..]).unwrap(), h);
         assert!(decode_header(&[9, 0, 0, 0, b'a']).is_err());
         assert!(decode_header(&[1, 0, 0, 0, b'a']).is_err());

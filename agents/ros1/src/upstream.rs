@@ -54,7 +54,9 @@ impl UpstreamSet {
         if let Ok(mut t) = self.msg_type.lock() {
             *t = msg_type.to_string();
         }
-        let Ok(mut tasks) = self.tasks.lock() else { return };
+        let Ok(mut tasks) = self.tasks.lock() else {
+            return;
+        };
         tasks.retain(|api, h| {
             let keep = apis.contains(api) && !h.is_finished();
             if !keep {
@@ -101,7 +103,14 @@ impl Drop for UpstreamSet {
     }
 }
 
-async fn run(api: String, caller: String, topic: String, ty: String, sink: Arc<dyn FrameSink>, timeout: Duration) {
+async fn run(
+    api: String,
+    caller: String,
+    topic: String,
+    ty: String,
+    sink: Arc<dyn FrameSink>,
+    timeout: Duration,
+) {
     let mut backoff = Duration::from_millis(100);
     loop {
         match tcpros::subscribe(&api, &caller, &topic, &ty, timeout).await {

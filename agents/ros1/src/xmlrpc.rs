@@ -240,20 +240,30 @@ fn tokenize(src: &str) -> Result<Vec<(usize, Tok)>, XmlRpcError> {
     while i < b.len() {
         if b[i] == b'<' {
             if src[i..].starts_with("<?") {
-                let e = src[i..].find("?>").ok_or_else(|| malformed(i, "unterminated <?"))?;
+                let e = src[i..]
+                    .find("?>")
+                    .ok_or_else(|| malformed(i, "unterminated <?"))?;
                 i += e + 2;
             } else if src[i..].starts_with("<!--") {
-                let e = src[i..].find("-->").ok_or_else(|| malformed(i, "unterminated comment"))?;
+                let e = src[i..]
+                    .find("-->")
+                    .ok_or_else(|| malformed(i, "unterminated comment"))?;
                 i += e + 3;
             } else if src[i..].starts_with("<![CDATA[") {
-                let e = src[i..].find("]]>").ok_or_else(|| malformed(i, "unterminated cdata"))?;
+                let e = src[i..]
+                    .find("]]>")
+                    .ok_or_else(|| malformed(i, "unterminated cdata"))?;
                 toks.push((i, Tok::Text(src[i + 9..i + e].to_string())));
                 i += e + 3;
             } else if src[i..].starts_with("<!") {
-                let e = src[i..].find('>').ok_or_else(|| malformed(i, "unterminated <!"))?;
+                let e = src[i..]
+                    .find('>')
+                    .ok_or_else(|| malformed(i, "unterminated <!"))?;
                 i += e + 1;
             } else {
-                let e = src[i..].find('>').ok_or_else(|| malformed(i, "unterminated tag"))?;
+                let e = src[i..]
+                    .find('>')
+                    .ok_or_else(|| malformed(i, "unterminated tag"))?;
                 let inner = src[i + 1..i + e].trim();
                 let tok = if let Some(n) = inner.strip_prefix('/') {
                     Tok::Close(n.trim().to_string())
@@ -307,7 +317,10 @@ impl Parser {
                 self.i += 1;
                 Ok(())
             }
-            other => Err(malformed(self.pos(), format!("expected <{name}>, got {other:?}"))),
+            other => Err(malformed(
+                self.pos(),
+                format!("expected <{name}>, got {other:?}"),
+            )),
         }
     }
     fn close(&mut self, name: &str) -> Result<(), XmlRpcError> {
@@ -316,7 +329,10 @@ impl Parser {
                 self.i += 1;
                 Ok(())
             }
-            other => Err(malformed(self.pos(), format!("expected </{name}>, got {other:?}"))),
+            other => Err(malformed(
+                self.pos(),
+                format!("expected </{name}>, got {other:?}"),
+            )),
         }
     }
     /// Raw text (not whitespace-skipped) up to the closing tag `name`.
@@ -360,11 +376,15 @@ impl Parser {
             Some(Tok::Open(n)) => {
                 self.i += 1;
                 let p = self.pos();
-                let v = match n.as_str() {
+                match n.as_str() {
                     "string" => Value::Str(self.text_until("string")?),
                     "i4" | "int" | "i8" => {
                         let t = self.text_until(&n)?;
-                        Value::Int(t.trim().parse().map_err(|_| malformed(p, format!("bad int {t:?}")))?)
+                        Value::Int(
+                            t.trim()
+                                .parse()
+                                .map_err(|_| malformed(p, format!("bad int {t:?}")))?,
+                        )
                     }
                     "boolean" => {
                         let t = self.text_until("boolean")?;
@@ -372,7 +392,11 @@ impl Parser {
                     }
                     "double" => {
                         let t = self.text_until("double")?;
-                        Value::Double(t.trim().parse().map_err(|_| malformed(p, format!("bad double {t:?}")))?)
+                        Value::Double(
+                            t.trim()
+                                .parse()
+                                .map_err(|_| malformed(p, format!("bad double {t:?}")))?,
+                        )
                     }
                     "dateTime.iso8601" => Value::DateTime(self.text_until(&n)?),
                     "base64" => Value::Base64(self.text_until("base64")?),
@@ -409,10 +433,14 @@ impl Parser {
                         Value::Struct(m)
                     }
                     other => return Err(malformed(p, format!("unknown type <{other}>"))),
-                };
-                v
+                }
             }
-            other => return Err(malformed(self.pos(), format!("unexpected {other:?} in value"))),
+            other => {
+                return Err(malformed(
+                    self.pos(),
+                    format!("unexpected {other:?} in value"),
+                ));
+            }
         };
         self.close("value")?;
         Ok(v)
@@ -466,7 +494,10 @@ pub fn decode_response(src: &str) -> Result<Response, XmlRpcError> {
         let (code, message) = match &v {
             Value::Struct(m) => (
                 m.get("faultCode").and_then(Value::as_i64).unwrap_or(-1),
-                m.get("faultString").and_then(Value::as_str).unwrap_or("").to_string(),
+                m.get("faultString")
+                    .and_then(Value::as_str)
+                    .unwrap_or("")
+                    .to_string(),
             ),
             _ => (-1, String::new()),
         };
@@ -501,7 +532,10 @@ mod tests {
         let call = decode_call(&encode_call("m", std::slice::from_ref(&v))).unwrap();
         assert_eq!(call.method, "m");
         assert_eq!(call.params, vec![v.clone()]);
-        assert_eq!(decode_response(&encode_response(&Response::Ok(v.clone()))).unwrap(), Response::Ok(v));
+        assert_eq!(
+            decode_response(&encode_response(&Response::Ok(v.clone()))).unwrap(),
+            Response::Ok(v)
+        );
     }
 
     #[test]
@@ -510,7 +544,12 @@ mod tests {
         let c = decode_call(src).unwrap();
         assert_eq!(
             c.params,
-            vec![Value::str("/rosparam-1"), Value::str("/a/b"), Value::Int(7), Value::str("")]
+            vec![
+                Value::str("/rosparam-1"),
+                Value::str("/a/b"),
+                Value::Int(7),
+                Value::str("")
+            ]
         );
         let f = "<?xml version='1.0'?><methodResponse><fault><value><struct><member><name>faultCode</name><value><int>1</int></value></member><member><name>faultString</name><value><string>boom &amp; bust</string></value></member></struct></value></fault></methodResponse>";
         assert_eq!(

@@ -13,9 +13,17 @@ use configbot_dataplane::{AdaptorSetting, DataPlane, EdgeId};
 use configbot_ros1::{Ros1Config, Ros1DataPlane};
 
 fn parse_adapt(s: &str) -> anyhow::Result<(EdgeId, AdaptorSetting)> {
-    let (edge, rate) = s.rsplit_once('@').context("--adapt wants TOPIC=SUBSCRIBER@RATE")?;
-    let (topic, sub) = edge.split_once('=').context("--adapt wants TOPIC=SUBSCRIBER@RATE")?;
-    let rate_hz = if rate == "none" { None } else { Some(rate.parse().context("bad rate")?) };
+    let (edge, rate) = s
+        .rsplit_once('@')
+        .context("--adapt wants TOPIC=SUBSCRIBER@RATE")?;
+    let (topic, sub) = edge
+        .split_once('=')
+        .context("--adapt wants TOPIC=SUBSCRIBER@RATE")?;
+    let rate_hz = if rate == "none" {
+        None
+    } else {
+        Some(rate.parse().context("bad rate")?)
+    };
     Ok((
         EdgeId {
             topic: topic.into(),
@@ -48,7 +56,11 @@ async fn main() -> anyhow::Result<()> {
     for (e, s) in adapt {
         dp.set_adaptor(&e, s)?;
     }
-    println!("configbot-ros1-master listening on {} (adaptor {})", dp.master_uri(), dp.adaptor_uri());
+    println!(
+        "configbot-ros1-master listening on {} (adaptor {})",
+        dp.master_uri(),
+        dp.adaptor_uri()
+    );
     tokio::signal::ctrl_c().await?;
     Ok(())
 }

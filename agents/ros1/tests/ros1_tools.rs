@@ -1,0 +1,321 @@
+//! Integration tests against Debian's real ROS 1 tools (rostopic, rosnode,
+//! rosparam, roslaunch) and rospy scripts, with the agent's master on a free
+//! port. Skipped with a message when `rostopic` is absent.
+
+mod common;
+
+use std::time::{Duration, Instant};
+
+use common::*;
+use configbot_dataplane::{AdaptorSetting, DataPlane, EdgeId, GraphEvent};
+use configbot_ros1::{Ros1Config, Ros1DataPlane};
+
+struct Agent {
+    dp: Ros1DataPlane,
+    env: RosEnv,
+    rt: tokio::runtime::Runtime,
+    _dir: tempfile::TempDir,
+}
+
+fn start_agent(refresh: Duration) -> Agent {
+    let dir = tempfile::tempdir().unwrap();
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .unwrap();
+    let port = free_port();
+    let cfg = Ros1Config {
+        master_uri: format!("http://localhost:{port}/"),
+        bind_host: "127.0.0.1".into(),
+        refresh_period: refresh,
+        ..Ros1Config::default()
+    };
+    let registry = prometheus::Registry::new();
+    let dp = rt
+        .block_on(Ros1DataPlane::start(
+            cfg,
+            &dir.path().join("ros1.db"),
+            &registry,
+        ))
+        .unwrap();
+    let env = RosEnv {
+        master_uri: dp.master_uri().to_string(),
+        home: dir.path().to_path_buf(),
+    };
+    Agent {
+        dp,
+        env,
+        rt,
+        _dir: dir,
+    }
+}
+
+#[test]
+fn params_topics_launch_and_graph_with_real_tools() {
+    if !ros_available() {
+        return;
+    }
+    let a = start_agent(Duration::from_secs(30));
+    let _g = a.rt.enter();
+    let env = &a.env;
+    let mut events = a.dp.subscribe_events();
+
+    // rosparam against our parameter server
+    env.run("rosparam", &["set", "/cfg/rate", "30"]);
+    env.run("rosparam", &["set", "/cfg/name", "spot"]);
+    assert_eq!(env.run("rosparam", &["get", "/cfg/rate"]).trim(), "30");
+    let list = env.run("rosparam", &["list"]);
+    assert!(list.contains("/cfg/name"), "{list}");
+    env.run("rosparam", &["delete", "/cfg/name"]);
+    assert!(!env.run("rosparam", &["list"]).contains("/cfg/name"));
+
+    // roslaunch loads params (multicall) and starts a node
+    let topic = format!("/{}", unique("launched"));
+    let launch = env.spawn(
+        "roslaunch",
+        &[
+            scripts().join("params.launch").to_str().unwrap(),
+            &format!("topic:={topic}"),
+        ],
+    );
+    wait_for("roslaunch params", Duration::from_secs(20), || {
+        env.command("rosparam")
+            .args(["get", "/configbot_test/gains/p"])
+            .output()
+            .is_ok_and(|o| String::from_utf8_lossy(&o.stdout).trim() == "1.5")
+    });
+    assert_eq!(
+        env.run("rosparam", &["get", "/configbot_test/name"]).trim(),
+        "robot one"
+    );
+    wait_for(
+        "launched talker registered",
+        Duration::from_secs(20),
+        || a.dp.graph().nodes.contains_key("/launched_talker"),
+    );
+
+    // rostopic pub + rospy listener; graph edges and pids
+    let chatter = format!("/{}", unique("chatter"));
+    let pub_name = format!("/{}", unique("pub"));
+    let talker = env.spawn(
+        "rostopic",
+        &[
+            "pub",
+            "-r",
+            "30",
+            &chatter,
+            "std_msgs/String",
+            "data: hi",
+            &format!("__name:={}", &pub_name[1..]),
+        ],
+    );
+    let lname = unique("listener");
+    let listener = env.script("listener.py", &[&lname, &chatter]);
+    wait_for("listener receives", Duration::from_secs(20), || {
+        listener.count_between(Instant::now() - Duration::from_secs(60), Instant::now()) > 5
+    });
+    let lnode = format!("/{lname}");
+    let out = env.run("rostopic", &["list"]);
+    assert!(out.contains(&chatter), "{out}");
+    let info = env.run("rostopic", &["info", &chatter]);
+    assert!(info.contains(&pub_name) && info.contains(&lnode), "{info}");
+    let nodes = env.run("rosnode", &["list"]);
+    assert!(
+        nodes.contains(&pub_name) && nodes.contains(&lnode),
+        "{nodes}"
+    );
+    let hz = env.run(
+        "timeout",
+        &[
+            "--preserve-status",
+            "-s",
+            "INT",
+            "4",
+            "rostopic",
+            "hz",
+            &chatter,
+        ],
+    );
+    assert!(
+        hz.contains("average rate: 3") || hz.contains("average rate: 29"),
+        "{hz}"
+    );
+
+    a.dp.wake();
+    wait_for("pids in graph", Duration::from_secs(10), || {
+        let g = a.dp.graph();
+        g.nodes.get(&pub_name).and_then(|n| n.pid) == Some(talker.pid())
+            && g.nodes.get(&lnode).and_then(|n| n.pid) == Some(listener.pid())
+    });
+    let g = a.dp.graph();
+    assert_eq!(g.topics[&chatter].msg_type, "std_msgs/String");
+    let edges: Vec<_> = g
+        .edges()
+        .into_iter()
+        .filter(|e| e.topic == chatter)
+        .collect();
+    assert_eq!(edges.len(), 1, "{edges:?}");
+    assert_eq!(
+        (edges[0].publisher.as_str(), edges[0].subscriber.as_str()),
+        (pub_name.as_str(), lnode.as_str())
+    );
+
+    // change events for the new edge
+    let mut saw_edge = false;
+    while let Ok(ev) = events.try_recv() {
+        saw_edge |=
+            matches!(&ev, GraphEvent::EdgeAdded(e) if e.topic == chatter && e.subscriber == lnode);
+    }
+    assert!(saw_edge, "no EdgeAdded event for {chatter}");
+
+    // topic metrics on raw TCPROS
+    wait_for("topic stats", Duration::from_secs(15), || {
+        a.dp.topic_stats(&chatter)
+            .unwrap()
+            .is_some_and(|s| s.samples > 60)
+    });
+    let s = a.dp.topic_stats(&chatter).unwrap().unwrap();
+    eprintln!("topic stats {s:?}");
+    assert!((28.5..=31.5).contains(&s.rate_hz), "{s:?}");
+    assert!(s.bytes_per_s > 30.0 * 4.0, "{s:?}");
+    assert!(a.dp.topic_stats("/no_such_topic").is_err());
+    drop(launch);
+}
+
+#[test]
+fn adaptor_limits_one_subscriber_and_changes_rate_live() {
+    if !ros_available() {
+        return;
+    }
+    let a = start_agent(Duration::from_secs(30));
+    let _g = a.rt.enter();
+    let env = &a.env;
+    let topic = format!("/{}", unique("camera"));
+    let slow = unique("slow_listener");
+    let fast = unique("fast_listener");
+    let edge = EdgeId {
+        topic: topic.clone(),
+        subscriber: format!("/{slow}"),
+    };
+    a.dp.set_adaptor(
+        &edge,
+        AdaptorSetting {
+            rate_hz: Some(20.0),
+        },
+    )
+    .unwrap();
+    let _talker = env.spawn(
+        "rostopic",
+        &["pub", "-r", "30", &topic, "std_msgs/String", "data: frame"],
+    );
+    let ls = env.script("listener.py", &[&slow, &topic]);
+    let lf = env.script("listener.py", &[&fast, &topic]);
+    let recent =
+        |p: &Proc| p.count_between(Instant::now() - Duration::from_secs(2), Instant::now());
+    wait_for("both listeners receive", Duration::from_secs(20), || {
+        recent(&ls) > 10 && recent(&lf) > 10
+    });
+
+    let (rs, rf) = std::thread::scope(|s| {
+        let a = s.spawn(|| measure_rate(&ls, 5.0));
+        let b = s.spawn(|| measure_rate(&lf, 5.0));
+        (a.join().unwrap(), b.join().unwrap())
+    });
+    eprintln!("adapted listener {rs:.2} Hz, plain listener {rf:.2} Hz");
+    assert!((19.0..=21.0).contains(&rs), "adapted listener got {rs} Hz");
+    assert!((28.5..=31.5).contains(&rf), "plain listener got {rf} Hz");
+
+    // the real graph: no adaptor node, the edge is publisher → slow listener
+    let info = env.run("rostopic", &["info", &topic]);
+    assert!(
+        info.contains(&slow) && !info.contains("configbot"),
+        "{info}"
+    );
+    let c = a.dp.adaptor_counters()[&edge];
+    assert!(c.forwarded > 50 && c.dropped > 20 && c.bytes > 0, "{c:?}");
+    let es = a.dp.edge_stats(&edge).unwrap();
+    assert!((18.5..=21.5).contains(&es.rate_hz), "{es:?}");
+
+    // 5 Hz at run time, effective within a second
+    a.dp.set_adaptor(&edge, AdaptorSetting { rate_hz: Some(5.0) })
+        .unwrap();
+    std::thread::sleep(Duration::from_secs(1));
+    let r5 = measure_rate(&ls, 4.0);
+    eprintln!("after set 5 Hz: {r5:.2} Hz");
+    assert!((4.0..=6.0).contains(&r5), "after 5 Hz: {r5}");
+
+    // pass-through restores 30 Hz
+    a.dp.set_adaptor(&edge, AdaptorSetting { rate_hz: None })
+        .unwrap();
+    std::thread::sleep(Duration::from_millis(500));
+    let r30 = measure_rate(&ls, 4.0);
+    eprintln!(
+        "after pass-through: {r30:.2} Hz, counters {:?}",
+        a.dp.adaptor_counters()[&edge]
+    );
+    assert!((28.5..=31.5).contains(&r30), "after pass-through: {r30}");
+    assert!(
+        a.dp.set_adaptor(
+            &edge,
+            AdaptorSetting {
+                rate_hz: Some(-1.0)
+            }
+        )
+        .is_err()
+    );
+}
+
+#[test]
+fn adaptor_handles_latched_topics_and_publishers_coming_and_going() {
+    if !ros_available() {
+        return;
+    }
+    let a = start_agent(Duration::from_secs(30));
+    let _g = a.rt.enter();
+    let env = &a.env;
+    let topic = format!("/{}", unique("latched"));
+    let lname = unique("late_listener");
+    let edge = EdgeId {
+        topic: topic.clone(),
+        subscriber: format!("/{lname}"),
+    };
+    a.dp.set_adaptor(&edge, AdaptorSetting { rate_hz: Some(2.0) })
+        .unwrap();
+    let tname = unique("latcher");
+    let _latcher = env.script("talker.py", &[&tname, &topic, "1", "--latch"]);
+    wait_for("latcher registered", Duration::from_secs(20), || {
+        a.dp.graph()
+            .topics
+            .get(&topic)
+            .is_some_and(|t| !t.publishers.is_empty())
+    });
+    let l = env.script("listener.py", &[&lname, &topic]);
+    wait_for(
+        "latched message through the adaptor",
+        Duration::from_secs(20),
+        || l.has_line("msg 13"),
+    );
+
+    // a second publisher appears later: the adaptor connects to it too
+    let t2name = unique("talker2");
+    let mut t2 = env.script("talker.py", &[&t2name, &topic, "10"]);
+    let recent =
+        |p: &Proc| p.count_between(Instant::now() - Duration::from_secs(3), Instant::now());
+    wait_for(
+        "messages of the new publisher",
+        Duration::from_secs(20),
+        || recent(&l) >= 4,
+    );
+    // and goes away: the listener stays connected and nothing breaks
+    t2.kill();
+    let t3name = unique("talker3");
+    let _t3 = env.script("talker.py", &[&t3name, &topic, "10"]);
+    let from = Instant::now();
+    wait_for(
+        "messages after publisher churn",
+        Duration::from_secs(20),
+        || l.count_between(from, Instant::now()) >= 3,
+    );
+    assert!(a.dp.adaptor_counters()[&edge].forwarded >= 5);
+}
