@@ -459,3 +459,56 @@ impl DataPlane for Ros1DataPlane {
         self.core.wake.notify_one();
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn placement_follows_apps_and_lists() {
+        let apps: Arc<dyn AppOf + Send + Sync> = Arc::new(|n: &str| match n {
+            "/det" => Some(false),
+            "/nav" | "/cam" => Some(true),
+            _ => None,
+        });
+        let e = |t: &str, s: &str| EdgeId {
+            topic: t.into(),
+            subscriber: s.into(),
+        };
+        let cfg = PolicyConfig {
+            include: [e("/odom", "/nav")].into_iter().collect(),
+            exclude: [e("/img", "/det")].into_iter().collect(),
+            ..PolicyConfig::default()
+        };
+        let place = placement_from_apps(apps, cfg);
+        assert!(place(&e("/camera", "/det"), &["/cam".into()]));
+        assert!(
+            place(&e("/camera", "/nav"), &["/det".into()]),
+            "non-core publisher"
+        );
+        assert!(!place(&e("/camera", "/nav"), &["/cam".into()]));
+        assert!(place(&e("/odom", "/nav"), &[]), "include list");
+        assert!(!place(&e("/img", "/det"), &["/cam".into()]), "exclude list");
+        assert!(!place(&e("/rosout", "/det"), &[]), "excluded topic");
+    }
+
+    #[test]
+    fn graph_from_state_has_types_edges_and_pids() {
+        let mut st = MasterState::default();
+        st.register_publisher("/cam", "http://c/", "/img", "sensor_msgs/Image");
+        st.register_subscriber("/det", "http://d/", "/img", "sensor_msgs/Image");
+        st.register_subscriber("/det", "http://d/", "/lonely", "std_msgs/String");
+        let mut pids = BTreeMap::new();
+        pids.insert(("/cam".to_string(), "http://c/".to_string()), 42);
+        pids.insert(("/det".to_string(), "http://old/".to_string()), 7);
+        let g = build_graph(&st, &pids);
+        assert_eq!(g.nodes["/cam"].pid, Some(42));
+        assert_eq!(
+            g.nodes["/det"].pid, None,
+            "pid of an older incarnation is not used"
+        );
+        assert_eq!(g.topics["/img"].msg_type, "sensor_msgs/Image");
+        assert_eq!(g.edges().len(), 1);
+        assert!(g.topics["/lonely"].publishers.is_empty());
+    }
+}

@@ -232,6 +232,11 @@ fn adaptor_limits_one_subscriber_and_changes_rate_live() {
         info.contains(&slow) && !info.contains("configbot"),
         "{info}"
     );
+    let info = env.run("rosnode", &["info", &format!("/{slow}")]);
+    assert!(
+        info.contains(a.dp.adaptor_uri()),
+        "adapted listener not on the adaptor: {info}"
+    );
     let c = a.dp.adaptor_counters()[&edge];
     assert!(c.forwarded > 50 && c.dropped > 20 && c.bytes > 0, "{c:?}");
     let es = a.dp.edge_stats(&edge).unwrap();
@@ -264,6 +269,30 @@ fn adaptor_limits_one_subscriber_and_changes_rate_live() {
         )
         .is_err()
     );
+
+    // removing the adaptor hands the subscriber back to the publisher
+    a.dp.set_adaptor(&edge, AdaptorSetting { rate_hz: Some(5.0) })
+        .unwrap();
+    a.dp.remove_adaptor(&edge).unwrap();
+    assert!(!a.dp.adaptors().contains_key(&edge));
+    let slow_info = || {
+        env.command("rosnode")
+            .args(["info", &format!("/{slow}")])
+            .output()
+            .map(|o| String::from_utf8_lossy(&o.stdout).into_owned())
+            .unwrap_or_default()
+    };
+    wait_for(
+        "subscriber off the adaptor, on the publisher",
+        Duration::from_secs(15),
+        || {
+            let info = slow_info();
+            info.contains(&topic) && !info.contains(a.dp.adaptor_uri())
+        },
+    );
+    let rd = measure_rate(&ls, 3.0);
+    eprintln!("after removal: {rd:.2} Hz");
+    assert!((28.5..=31.5).contains(&rd), "after removal: {rd}");
 }
 
 #[test]
