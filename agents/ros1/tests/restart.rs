@@ -57,7 +57,20 @@ fn kill_and_restart_keeps_graph_params_and_connections() {
     let ra = measure_rate(&la, 3.0);
     assert!((8.5..=11.5).contains(&ra), "adapted before restart: {ra}");
 
+    let doomed = unique("doomed");
+    let mut doomed_p = env.script("listener.py", &[&doomed, &topic]);
+    wait_for(
+        "doomed listener registered",
+        Duration::from_secs(20),
+        || doomed_p.has_line("ready"),
+    );
+    wait_for("doomed listed", Duration::from_secs(10), || {
+        env.run("rosnode", &["list"]).contains(doomed.as_str())
+    });
+
     master.kill();
+    // a node that dies while the master is down is dropped on restart
+    doomed_p.kill();
     // nodes keep talking while the master is down
     wait_for(
         "plain listener without master",
@@ -73,6 +86,10 @@ fn kill_and_restart_keeps_graph_params_and_connections() {
             "{n} missing after restart: {nodes}"
         );
     }
+    assert!(
+        !nodes.contains(doomed.as_str()),
+        "dead node kept after restart: {nodes}"
+    );
     let info = env.run("rostopic", &["info", &topic]);
     assert!(info.contains(&tname) && info.contains(&plain), "{info}");
     assert_eq!(env.run("rosparam", &["get", "/persist/me"]).trim(), "7");
