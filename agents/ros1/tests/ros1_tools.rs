@@ -12,6 +12,7 @@ use configbot_ros1::{Ros1Config, Ros1DataPlane};
 
 struct Agent {
     dp: Ros1DataPlane,
+    registry: prometheus::Registry,
     env: RosEnv,
     rt: tokio::runtime::Runtime,
     _dir: tempfile::TempDir,
@@ -45,6 +46,7 @@ fn start_agent(refresh: Duration) -> Agent {
     };
     Agent {
         dp,
+        registry,
         env,
         rt,
         _dir: dir,
@@ -72,7 +74,8 @@ fn params_topics_launch_and_graph_with_real_tools() {
 
     // roslaunch loads params (multicall) and starts a node
     let topic = format!("/{}", unique("launched"));
-    let launch = env.spawn(
+    let mut launched_guard = PidGuard(None);
+    let mut launch = env.spawn(
         "roslaunch",
         &[
             scripts().join("params.launch").to_str().unwrap(),
@@ -94,6 +97,15 @@ fn params_topics_launch_and_graph_with_real_tools() {
         Duration::from_secs(20),
         || a.dp.graph().nodes.contains_key("/launched_talker"),
     );
+    a.dp.wake();
+    wait_for("launched talker pid", Duration::from_secs(10), || {
+        launched_guard.0 =
+            a.dp.graph()
+                .nodes
+                .get("/launched_talker")
+                .and_then(|n| n.pid);
+        launched_guard.0.is_some()
+    });
 
     // rostopic pub + rospy listener; graph edges and pids
     let chatter = format!("/{}", unique("chatter"));
@@ -180,7 +192,7 @@ fn params_topics_launch_and_graph_with_real_tools() {
     assert!((28.5..=31.5).contains(&s.rate_hz), "{s:?}");
     assert!(s.bytes_per_s > 30.0 * 4.0, "{s:?}");
     assert!(a.dp.topic_stats("/no_such_topic").is_err());
-    drop(launch);
+    launch.interrupt(Duration::from_secs(15));
 }
 
 #[test]
@@ -239,6 +251,25 @@ fn adaptor_limits_one_subscriber_and_changes_rate_live() {
     );
     let c = a.dp.adaptor_counters()[&edge];
     assert!(c.forwarded > 50 && c.dropped > 20 && c.bytes > 0, "{c:?}");
+    let forwarded_metric = a
+        .registry
+        .gather()
+        .into_iter()
+        .find(|f| f.name() == "configbot_adaptor_forwarded_total")
+        .and_then(|f| {
+            f.get_metric()
+                .iter()
+                .find(|m| {
+                    m.get_label()
+                        .iter()
+                        .any(|l| l.get_value() == edge.subscriber)
+                })
+                .map(|m| m.get_counter().get_value())
+        });
+    assert!(
+        forwarded_metric.is_some_and(|v| v >= c.forwarded as f64),
+        "{forwarded_metric:?} vs {c:?}"
+    );
     let es = a.dp.edge_stats(&edge).unwrap();
     assert!((18.5..=21.5).contains(&es.rate_hz), "{es:?}");
 

@@ -157,6 +157,23 @@ impl Proc {
             .count()
     }
 
+    /// SIGINT (roslaunch then stops the nodes it started in their own
+    /// sessions), wait up to `timeout`, then kill.
+    pub fn interrupt(&mut self, timeout: Duration) {
+        let _ = Command::new("kill")
+            .args(["-INT", &self.child.id().to_string()])
+            .stderr(Stdio::null())
+            .status();
+        let end = Instant::now() + timeout;
+        while Instant::now() < end {
+            if matches!(self.child.try_wait(), Ok(Some(_))) {
+                return;
+            }
+            std::thread::sleep(Duration::from_millis(50));
+        }
+        self.kill();
+    }
+
     pub fn kill(&mut self) {
         let _ = Command::new("kill")
             .args(["-KILL", "--", &format!("-{}", self.child.id())])
@@ -190,4 +207,20 @@ pub fn measure_rate(p: &Proc, secs: f64) -> f64 {
     let from = Instant::now();
     std::thread::sleep(Duration::from_secs_f64(secs));
     p.count_between(from, Instant::now()) as f64 / secs
+}
+
+/// Kills a process we did not spawn directly (e.g. a node roslaunch started
+/// in its own session) on drop.
+#[derive(Debug)]
+pub struct PidGuard(pub Option<u32>);
+
+impl Drop for PidGuard {
+    fn drop(&mut self) {
+        if let Some(pid) = self.0 {
+            let _ = Command::new("kill")
+                .args(["-KILL", &pid.to_string()])
+                .stderr(Stdio::null())
+                .status();
+        }
+    }
 }
