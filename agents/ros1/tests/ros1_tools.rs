@@ -262,7 +262,7 @@ fn adaptor_limits_one_subscriber_and_changes_rate_live() {
                 .find(|m| {
                     m.get_label()
                         .iter()
-                        .any(|l| l.get_value() == edge.subscriber)
+                        .any(|l| l.value() == edge.subscriber)
                 })
                 .map(|m| m.get_counter().get_value())
         });
