@@ -72,6 +72,19 @@ fn params_topics_launch_and_graph_with_real_tools() {
     env.run("rosparam", &["delete", "/cfg/name"]);
     assert!(!env.run("rosparam", &["list"]).contains("/cfg/name"));
 
+    // subscribeParam + paramUpdate callbacks (rospy.get_param_cached)
+    env.run("rosparam", &["set", "/watched/level", "1"]);
+    let watcher = env.script("param_watcher.py", &[&unique("watcher"), "/watched/level"]);
+    wait_for("cached param read", Duration::from_secs(20), || {
+        watcher.has_line("value 1")
+    });
+    env.run("rosparam", &["set", "/watched/level", "2"]);
+    wait_for(
+        "paramUpdate pushed to the node",
+        Duration::from_secs(10),
+        || watcher.has_line("value 2"),
+    );
+
     // roslaunch loads params (multicall) and starts a node
     let topic = format!("/{}", unique("launched"));
     let mut launched_guard = PidGuard(None);
@@ -259,11 +272,7 @@ fn adaptor_limits_one_subscriber_and_changes_rate_live() {
         .and_then(|f| {
             f.get_metric()
                 .iter()
-                .find(|m| {
-                    m.get_label()
-                        .iter()
-                        .any(|l| l.value() == edge.subscriber)
-                })
+                .find(|m| m.get_label().iter().any(|l| l.value() == edge.subscriber))
                 .map(|m| m.get_counter().get_value())
         });
     assert!(
