@@ -118,7 +118,10 @@ pub struct EdgeRelay {
     forwarded: AtomicU64,
     dropped: AtomicU64,
     bytes: AtomicU64,
-    latched: Mutex<Option<Frame>>,
+    /// Last message of each latching publisher, by publisher API.
+    latched: Mutex<BTreeMap<String, Frame>>,
+    /// Reply header of each connected publisher.
+    headers: Mutex<BTreeMap<String, Header>>,
     header: watch::Sender<Option<Header>>,
     downstream: Mutex<Vec<mpsc::Sender<Frame>>>,
     consumer: Mutex<RateWindow>,
@@ -135,7 +138,8 @@ impl EdgeRelay {
             forwarded: AtomicU64::new(0),
             dropped: AtomicU64::new(0),
             bytes: AtomicU64::new(0),
-            latched: Mutex::new(None),
+            latched: Mutex::new(BTreeMap::new()),
+            headers: Mutex::new(BTreeMap::new()),
             header: watch::channel(None).0,
             downstream: Mutex::new(Vec::new()),
             consumer: Mutex::new(RateWindow::new(10.0)),
@@ -201,19 +205,30 @@ impl EdgeRelay {
 }
 
 impl FrameSink for EdgeRelay {
-    fn on_header(&self, _api: &str, header: &Header) {
+    fn on_header(&self, api: &str, header: &Header) {
+        if let Ok(mut h) = self.headers.lock() {
+            h.insert(api.to_string(), header.clone());
+        }
         self.header.send_replace(Some(header.clone()));
     }
 
-    fn on_frame(&self, frame: Vec<u8>) {
+    fn on_gone(&self, api: &str) {
+        if let Ok(mut h) = self.headers.lock() {
+            h.remove(api);
+        }
+        if let Ok(mut l) = self.latched.lock() {
+            l.remove(api);
+        }
+    }
+
+    fn on_frame(&self, api: &str, frame: Vec<u8>) {
         let frame = Arc::new(frame);
-        let latching = self
-            .header
-            .borrow()
-            .as_ref()
-            .is_some_and(|h| h.get("latching").is_some_and(|v| v == "1"));
+        let latching = self.headers.lock().is_ok_and(|h| {
+            h.get(api)
+                .is_some_and(|h| h.get("latching").is_some_and(|v| v == "1"))
+        });
         if latching && let Ok(mut l) = self.latched.lock() {
-            *l = Some(frame.clone());
+            l.insert(api.to_string(), frame.clone());
         }
         let Ok(mut down) = self.downstream.lock() else {
             return;
@@ -318,6 +333,14 @@ pub async fn serve_tcpros(listener: TcpListener, relays: Relays, timeout: Durati
                 }
             }
             reply.insert("topic".into(), id.topic.clone());
+            let any_latching = edge.headers.lock().is_ok_and(|h| {
+                h.values()
+                    .any(|h| h.get("latching").is_some_and(|v| v == "1"))
+            });
+            reply.insert(
+                "latching".into(),
+                if any_latching { "1" } else { "0" }.into(),
+            );
             if let (Some(want), Some(have)) = (h.get("md5sum"), up.get("md5sum"))
                 && want != "*"
                 && have != "*"
@@ -339,15 +362,21 @@ pub async fn serve_tcpros(listener: TcpListener, relays: Relays, timeout: Durati
             {
                 return;
             }
-            let latched = edge.latched.lock().ok().and_then(|l| l.clone());
-            if let Some(f) = latched
-                && tcpros::write_frame(&mut stream, &f, &peer).await.is_err()
-            {
-                return;
-            }
+            // Attach first, then replay latched messages: a message arriving
+            // in between may be seen twice, never lost.
             let (tx, mut rx) = mpsc::channel::<Frame>(16);
             edge.attach(tx);
+            let latched: Vec<Frame> = edge
+                .latched
+                .lock()
+                .map(|l| l.values().cloned().collect())
+                .unwrap_or_default();
             drop(edge);
+            for f in latched {
+                if tcpros::write_frame(&mut stream, &f, &peer).await.is_err() {
+                    return;
+                }
+            }
             while let Some(f) = rx.recv().await {
                 if tcpros::write_frame(&mut stream, &f, &peer).await.is_err() {
                     break;

@@ -21,7 +21,7 @@ struct Sink {
 
 impl FrameSink for Sink {
     fn on_header(&self, _api: &str, _header: &Header) {}
-    fn on_frame(&self, frame: Vec<u8>) {
+    fn on_frame(&self, _api: &str, frame: Vec<u8>) {
         let t = self.epoch.elapsed().as_secs_f64();
         if let Ok(mut w) = self.window.lock() {
             w.record(t, frame.len());

@@ -14,8 +14,10 @@ use crate::tcpros::{self, Header};
 pub trait FrameSink: Send + Sync + 'static {
     /// A publisher's reply header after a (re)connect.
     fn on_header(&self, api: &str, header: &Header);
-    /// One raw message frame.
-    fn on_frame(&self, frame: Vec<u8>);
+    /// One raw message frame from publisher `api`.
+    fn on_frame(&self, api: &str, frame: Vec<u8>);
+    /// Publisher `api` is no longer listed.
+    fn on_gone(&self, _api: &str) {}
 }
 
 /// The set of publisher connections of one subscription.
@@ -61,6 +63,9 @@ impl UpstreamSet {
             let keep = apis.contains(api) && !h.is_finished();
             if !keep {
                 h.abort();
+                if !apis.contains(api) {
+                    self.sink.on_gone(api);
+                }
             }
             keep
         });
@@ -118,7 +123,7 @@ async fn run(
                 backoff = Duration::from_millis(100);
                 sink.on_header(&api, &c.header);
                 while let Ok(f) = tcpros::read_block(&mut c.stream, &c.peer).await {
-                    sink.on_frame(f);
+                    sink.on_frame(&api, f);
                 }
             }
             Err(_) => {

@@ -387,4 +387,24 @@ fn adaptor_handles_latched_topics_and_publishers_coming_and_going() {
         || l.count_between(from, Instant::now()) >= 3,
     );
     assert!(a.dp.adaptor_counters()[&edge].forwarded >= 5);
+
+    // the subscriber restarts under the same name: it is adapted again and
+    // gets the latched message of the latching publisher again
+    let mut l = l;
+    l.kill();
+    let l2 = env.script("listener.py", &[&lname, &topic]);
+    wait_for(
+        "latched message after reconnect",
+        Duration::from_secs(20),
+        || l2.has_line("msg 13"),
+    );
+    let from = Instant::now();
+    wait_for("stream after reconnect", Duration::from_secs(20), || {
+        l2.count_between(from, Instant::now()) >= 3
+    });
+    let r = measure_rate(&l2, 4.0);
+    assert!(
+        (1.0..=3.0).contains(&r),
+        "reconnected subscriber not limited to 2 Hz: {r}"
+    );
 }
