@@ -1,0 +1,611 @@
+//! Kubernetes-style resource handlers: list, get, create, replace, merge-patch,
+//! delete, the status subresource, watch streams and `Table` output.
+
+use std::collections::BTreeMap;
+use std::convert::Infallible;
+
+use axum::Json;
+use axum::body::{Body, Bytes};
+use axum::extract::{Path, Query, State};
+use axum::http::{HeaderMap, StatusCode, header};
+use axum::response::{IntoResponse, Response};
+use configbot_manifests::{Kind, Manifest};
+use futures_util::StreamExt;
+use serde::Deserialize;
+use serde_json::{Value, json};
+use tokio_stream::wrappers::BroadcastStream;
+
+use super::status::{ApiError, status_body};
+use super::{AppState, selector::Selector};
+use crate::store::{Change, ChangeType, key_of};
+use crate::table;
+
+type ApiResult<T = Response> = Result<T, ApiError>;
+
+#[derive(Debug, Default, Deserialize)]
+#[serde(rename_all = "camelCase")]
+pub struct ListParams {
+    label_selector: Option<String>,
+    field_selector: Option<String>,
+    watch: Option<String>,
+    resource_version: Option<String>,
+    dry_run: Option<String>,
+}
+
+fn kind_of(plural: &str) -> ApiResult<Kind> {
+    Kind::from_plural(plural).ok_or_else(|| {
+        ApiError::NotFound(format!(
+            "the server could not find the requested resource {plural:?}"
+        ))
+    })
+}
+
+fn wants_table(headers: &HeaderMap) -> bool {
+    headers
+        .get(header::ACCEPT)
+        .and_then(|v| v.to_str().ok())
+        .is_some_and(|a| a.contains("as=Table"))
+}
+
+fn table_of(kind: Kind, objs: &[Value], rv: &str) -> Value {
+    let now = time::OffsetDateTime::now_utc();
+    let mut cols = vec![json!({"name": "Name", "type": "string", "format": "name", "priority": 0})];
+    cols.extend(kind.printer_columns().iter().map(|c| {
+        json!({"name": c.name, "type": if c.type_ == "number" { "string" } else { c.type_ }, "format": "", "priority": if c.wide { 1 } else { 0 }})
+    }));
+    cols.push(json!({"name": "Age", "type": "string", "format": "", "priority": 0}));
+    let rows: Vec<Value> = objs
+        .iter()
+        .map(|o| {
+            let cells: Vec<Value> = table::row(kind, o, true, false, now)
+                .into_iter()
+                .enumerate()
+                .map(|(i, c)| {
+                    // Integer columns stay numbers for kubectl's printer.
+                    let col = if i == 0 { None } else { kind.printer_columns().get(i - 1) };
+                    match col {
+                        Some(c) if c.type_ == "integer" => c.value(o).cloned().unwrap_or(Value::Null),
+                        _ => Value::String(c),
+                    }
+                })
+                .collect();
+            json!({"cells": cells, "object": {"kind": "PartialObjectMetadata", "apiVersion": "meta.k8s.io/v1", "metadata": o["metadata"]}})
+        })
+        .collect();
+    json!({"kind": "Table", "apiVersion": "meta.k8s.io/v1", "metadata": {"resourceVersion": rv}, "columnDefinitions": cols, "rows": rows})
+}
+
+fn field_map(obj: &Value) -> BTreeMap<String, String> {
+    let (ns, name) = key_of(obj);
+    [
+        ("metadata.name".to_string(), name),
+        ("metadata.namespace".to_string(), ns),
+    ]
+    .into()
+}
+
+struct Filter {
+    kind: Kind,
+    namespace: Option<String>,
+    labels: Selector,
+    fields: Selector,
+}
+
+impl Filter {
+    fn new(kind: Kind, namespace: Option<String>, p: &ListParams) -> ApiResult<Filter> {
+        let parse = |s: &Option<String>| {
+            Selector::parse(s.as_deref().unwrap_or("")).map_err(ApiError::BadRequest)
+        };
+        Ok(Filter {
+            kind,
+            namespace,
+            labels: parse(&p.label_selector)?,
+            fields: parse(&p.field_selector)?,
+        })
+    }
+    fn admits(&self, kind: Kind, obj: &Value) -> bool {
+        kind == self.kind
+            && self
+                .namespace
+                .as_deref()
+                .is_none_or(|ns| key_of(obj).0 == ns)
+            && self.labels.matches_object(obj)
+            && self.fields.matches_fields(&field_map(obj))
+    }
+}
+
+pub async fn list_all(
+    State(s): State<AppState>,
+    Path(plural): Path<String>,
+    Query(p): Query<ListParams>,
+    headers: HeaderMap,
+) -> ApiResult {
+    list(s, plural, None, p, headers).await
+}
+
+pub async fn list_ns(
+    State(s): State<AppState>,
+    Path((ns, plural)): Path<(String, String)>,
+    Query(p): Query<ListParams>,
+    headers: HeaderMap,
+) -> ApiResult {
+    list(s, plural, Some(ns), p, headers).await
+}
+
+async fn list(
+    s: AppState,
+    plural: String,
+    ns: Option<String>,
+    p: ListParams,
+    headers: HeaderMap,
+) -> ApiResult {
+    let kind = kind_of(&plural)?;
+    let filter = Filter::new(kind, ns.clone(), &p)?;
+    if matches!(p.watch.as_deref(), Some("true" | "1")) {
+        return watch(s, filter, p.resource_version, wants_table(&headers));
+    }
+    let (objs, rv) = s.store.list(kind, ns.as_deref())?;
+    let objs: Vec<Value> = objs
+        .into_iter()
+        .filter(|o| filter.admits(kind, o))
+        .collect();
+    if wants_table(&headers) {
+        return Ok(Json(table_of(kind, &objs, &rv.to_string())).into_response());
+    }
+    Ok(Json(json!({
+        "apiVersion": configbot_manifests::API_VERSION, "kind": format!("{}List", kind.name()),
+        "metadata": {"resourceVersion": rv.to_string()}, "items": objs,
+    }))
+    .into_response())
+}
+
+/// A watch: the current objects (or the changes after `resourceVersion`), then
+/// live changes, as newline-delimited JSON `{"type", "object"}` events.
+fn watch(s: AppState, filter: Filter, from: Option<String>, as_table: bool) -> ApiResult {
+    let live = s.store.subscribe();
+    let from_rv = from
+        .as_deref()
+        .and_then(|v| v.parse::<i64>().ok())
+        .filter(|v| *v > 0);
+    let (initial, start_rv) = match from_rv {
+        Some(rv) => {
+            let changes = s
+                .store
+                .changes_since(rv)?
+                .ok_or_else(|| ApiError::Gone(format!("too old resource version: {rv}")))?;
+            let last = changes.last().map_or(rv, |c| c.resource_version);
+            (changes, last)
+        }
+        None => {
+            let (objs, rv) = s.store.list(filter.kind, filter.namespace.as_deref())?;
+            let changes = objs
+                .into_iter()
+                .map(|o| Change {
+                    resource_version: rv,
+                    kind: filter.kind,
+                    type_: ChangeType::Added,
+                    object: o,
+                })
+                .collect();
+            (changes, rv)
+        }
+    };
+    let kind = filter.kind;
+    let encode = move |c: &Change| -> Bytes {
+        let object = if as_table {
+            table_of(
+                kind,
+                std::slice::from_ref(&c.object),
+                &c.resource_version.to_string(),
+            )
+        } else {
+            c.object.clone()
+        };
+        let mut line = json!({"type": c.type_.as_str(), "object": object}).to_string();
+        line.push('\n');
+        Bytes::from(line)
+    };
+    let first: Vec<Result<Bytes, Infallible>> = initial
+        .iter()
+        .filter(|c| filter.admits(c.kind, &c.object))
+        .map(|c| Ok(encode(c)))
+        .collect();
+    let rest = BroadcastStream::new(live).filter_map(move |c| {
+        let out = match c {
+            Ok(c) if c.resource_version > start_rv && filter.admits(c.kind, &c.object) => {
+                Some(Ok(encode(&c)))
+            }
+            _ => None,
+        };
+        async move { out }
+    });
+    let stream = futures_util::stream::iter(first).chain(rest);
+    Response::builder()
+        .header(header::CONTENT_TYPE, "application/json")
+        .header(header::CACHE_CONTROL, "no-cache")
+        .body(Body::from_stream(stream))
+        .map_err(|e| ApiError::Internal(e.to_string()))
+}
+
+pub async fn get(
+    State(s): State<AppState>,
+    Path((ns, plural, name)): Path<(String, String, String)>,
+    headers: HeaderMap,
+) -> ApiResult {
+    let kind = kind_of(&plural)?;
+    let obj = s.store.get(kind, &ns, &name)?.ok_or_else(|| {
+        ApiError::NotFound(format!(
+            "{} {name:?} not found in namespace {ns:?}",
+            kind.plural()
+        ))
+    })?;
+    if wants_table(&headers) {
+        let rv = obj["metadata"]["resourceVersion"]
+            .as_str()
+            .unwrap_or("")
+            .to_string();
+        return Ok(Json(table_of(kind, &[obj], &rv)).into_response());
+    }
+    Ok(Json(obj).into_response())
+}
+
+fn parse_body(headers: &HeaderMap, body: &Bytes) -> ApiResult<Value> {
+    let ct = headers
+        .get(header::CONTENT_TYPE)
+        .and_then(|v| v.to_str().ok())
+        .unwrap_or("application/json");
+    if ct.contains("yaml") {
+        let text = std::str::from_utf8(body)
+            .map_err(|_| ApiError::BadRequest("body is not UTF-8".into()))?;
+        let docs = configbot_manifests::yaml::parse_documents(text)
+            .map_err(|e| ApiError::BadRequest(format!("invalid YAML body: {}", e.message)))?;
+        return match docs.into_iter().next() {
+            Some(d) => Ok(d.value),
+            None => Err(ApiError::BadRequest("empty body".into())),
+        };
+    }
+    serde_json::from_slice(body)
+        .map_err(|e| ApiError::BadRequest(format!("invalid JSON body: {e}")))
+}
+
+/// Decode and validate an object for `kind` at `ns`/`name` (when the path names one),
+/// returning its normalised JSON.
+fn admit(
+    s: &AppState,
+    kind: Kind,
+    ns: &str,
+    name: Option<&str>,
+    mut obj: Value,
+) -> ApiResult<Value> {
+    let body_name = obj["metadata"]["name"].as_str().unwrap_or("").to_string();
+    if let Some(name) = name
+        && !body_name.is_empty()
+        && body_name != name
+    {
+        return Err(ApiError::BadRequest(format!(
+            "the name in the body ({body_name:?}) does not match the name in the URL ({name:?})"
+        )));
+    }
+    if let Some(name) = name {
+        obj["metadata"]["name"] = name.into();
+    }
+    match obj["metadata"]["namespace"].as_str() {
+        Some(body_ns) if body_ns != ns => {
+            return Err(ApiError::BadRequest(format!(
+                "the namespace of the object ({body_ns:?}) does not match the namespace of the request ({ns:?})"
+            )));
+        }
+        _ => obj["metadata"]["namespace"] = ns.into(),
+    }
+    if obj["kind"].as_str() != Some(kind.name()) {
+        return Err(ApiError::BadRequest(format!(
+            "kind {:?} does not match the resource {:?}",
+            obj["kind"],
+            kind.plural()
+        )));
+    }
+    let status = obj.as_object_mut().and_then(|o| o.remove("status"));
+    let manifest = configbot_manifests::decode_and_validate(&obj)
+        .map_err(|c| ApiError::invalid(kind.name(), &body_name, c))?;
+    if let Manifest::PerformanceSpec(p) = &manifest
+        && let Some(stack) = s.store.get(Kind::RobotStack, ns, &p.spec.stack_ref.name)?
+        && let Ok(Manifest::RobotStack(stack)) = configbot_manifests::decode(&stack)
+    {
+        let errs = configbot_manifests::validate::validate_against_stack(p, &stack);
+        if !errs.is_empty() {
+            return Err(ApiError::invalid(kind.name(), &body_name, errs));
+        }
+    }
+    let mut out = manifest.to_json();
+    if let Some(st) = status {
+        out["status"] = st;
+    }
+    Ok(out)
+}
+
+fn dry(p: &ListParams) -> bool {
+    p.dry_run.as_deref().is_some_and(|d| d == "All")
+}
+
+pub async fn create(
+    State(s): State<AppState>,
+    Path((ns, plural)): Path<(String, String)>,
+    Query(p): Query<ListParams>,
+    headers: HeaderMap,
+    body: Bytes,
+) -> ApiResult {
+    let kind = kind_of(&plural)?;
+    let obj = admit(&s, kind, &ns, None, parse_body(&headers, &body)?)?;
+    if dry(&p) {
+        return Ok((StatusCode::CREATED, Json(obj)).into_response());
+    }
+    let (stored, _) = s.store.put(kind, obj, true)?;
+    let _ = s.store.record_event(
+        &stored,
+        "Normal",
+        "Created",
+        &format!("{} created", kind.name()),
+    );
+    Ok((StatusCode::CREATED, Json(stored)).into_response())
+}
+
+pub async fn replace(
+    State(s): State<AppState>,
+    Path((ns, plural, name)): Path<(String, String, String)>,
+    Query(p): Query<ListParams>,
+    headers: HeaderMap,
+    body: Bytes,
+) -> ApiResult {
+    let kind = kind_of(&plural)?;
+    let obj = admit(&s, kind, &ns, Some(&name), parse_body(&headers, &body)?)?;
+    if dry(&p) {
+        return Ok(Json(obj).into_response());
+    }
+    let existed = s.store.get(kind, &ns, &name)?.is_some();
+    let (stored, changed) = s.store.put(kind, obj, false)?;
+    if changed {
+        let reason = if existed { "Updated" } else { "Created" };
+        let _ = s.store.record_event(
+            &stored,
+            "Normal",
+            reason,
+            &format!("{} {}", kind.name(), reason.to_lowercase()),
+        );
+    }
+    Ok((
+        if existed {
+            StatusCode::OK
+        } else {
+            StatusCode::CREATED
+        },
+        Json(stored),
+    )
+        .into_response())
+}
+
+/// RFC 7386 JSON merge patch.
+pub fn merge_patch(target: &mut Value, patch: &Value) {
+    match patch {
+        Value::Object(p) => {
+            if !target.is_object() {
+                *target = json!({});
+            }
+            if let Value::Object(t) = target {
+                for (k, v) in p {
+                    if v.is_null() {
+                        t.remove(k);
+                    } else {
+                        merge_patch(t.entry(k.clone()).or_insert(Value::Null), v);
+                    }
+                }
+            }
+        }
+        other => *target = other.clone(),
+    }
+}
+
+fn patch_body(headers: &HeaderMap, body: &Bytes) -> ApiResult<Value> {
+    let ct = headers
+        .get(header::CONTENT_TYPE)
+        .and_then(|v| v.to_str().ok())
+        .unwrap_or("");
+    if !ct.starts_with("application/merge-patch+json") {
+        return Err(ApiError::UnsupportedMediaType(format!(
+            "patch type {ct:?} is not supported; use application/merge-patch+json (kubectl: --type=merge)"
+        )));
+    }
+    serde_json::from_slice(body)
+        .map_err(|e| ApiError::BadRequest(format!("invalid JSON patch body: {e}")))
+}
+
+pub async fn patch(
+    State(s): State<AppState>,
+    Path((ns, plural, name)): Path<(String, String, String)>,
+    Query(p): Query<ListParams>,
+    headers: HeaderMap,
+    body: Bytes,
+) -> ApiResult {
+    let kind = kind_of(&plural)?;
+    let patch = patch_body(&headers, &body)?;
+    let mut obj = s
+        .store
+        .get(kind, &ns, &name)?
+        .ok_or_else(|| ApiError::NotFound(format!("{} {name:?} not found", kind.plural())))?;
+    merge_patch(&mut obj, &patch);
+    let given_rv = patch["metadata"]["resourceVersion"]
+        .as_str()
+        .map(str::to_string);
+    let mut obj = admit(&s, kind, &ns, Some(&name), obj)?;
+    match given_rv {
+        Some(rv) => obj["metadata"]["resourceVersion"] = rv.into(),
+        None => {
+            if let Some(m) = obj["metadata"].as_object_mut() {
+                m.remove("resourceVersion");
+            }
+        }
+    }
+    if dry(&p) {
+        return Ok(Json(obj).into_response());
+    }
+    let (stored, changed) = s.store.put(kind, obj, false)?;
+    if changed {
+        let _ = s.store.record_event(
+            &stored,
+            "Normal",
+            "Updated",
+            &format!("{} updated", kind.name()),
+        );
+    }
+    Ok(Json(stored).into_response())
+}
+
+pub async fn delete(
+    State(s): State<AppState>,
+    Path((ns, plural, name)): Path<(String, String, String)>,
+) -> ApiResult {
+    let kind = kind_of(&plural)?;
+    let obj = s.store.delete(kind, &ns, &name)?;
+    let _ = s.store.record_event(
+        &obj,
+        "Normal",
+        "Deleted",
+        &format!("{} deleted", kind.name()),
+    );
+    let details = json!({"name": name, "kind": kind.plural(), "uid": obj["metadata"]["uid"]});
+    Ok(Json(status_body(StatusCode::OK, "", "", details)).into_response())
+}
+
+fn validate_status(kind: Kind, status: &Value) -> ApiResult<()> {
+    let r = match kind {
+        Kind::RobotStack => {
+            serde_path_to_error::deserialize::<_, configbot_manifests::RobotStackStatus>(status)
+                .map(|_| ())
+        }
+        Kind::PerformanceSpec => serde_path_to_error::deserialize::<
+            _,
+            configbot_manifests::PerformanceSpecStatus,
+        >(status)
+        .map(|_| ()),
+    };
+    r.map_err(|e| {
+        ApiError::invalid(
+            kind.name(),
+            "",
+            vec![configbot_manifests::FieldError {
+                path: format!("status.{}", e.path()),
+                message: e.into_inner().to_string(),
+            }],
+        )
+    })
+}
+
+pub async fn put_status(
+    State(s): State<AppState>,
+    Path((ns, plural, name)): Path<(String, String, String)>,
+    headers: HeaderMap,
+    body: Bytes,
+) -> ApiResult {
+    let kind = kind_of(&plural)?;
+    let obj = parse_body(&headers, &body)?;
+    let status = obj.get("status").cloned().unwrap_or(Value::Null);
+    validate_status(kind, &status)?;
+    let rv = obj["metadata"]["resourceVersion"].as_str();
+    let (stored, _) = s.store.put_status(kind, &ns, &name, status, rv)?;
+    Ok(Json(stored).into_response())
+}
+
+pub async fn patch_status(
+    State(s): State<AppState>,
+    Path((ns, plural, name)): Path<(String, String, String)>,
+    headers: HeaderMap,
+    body: Bytes,
+) -> ApiResult {
+    let kind = kind_of(&plural)?;
+    let patch = patch_body(&headers, &body)?;
+    let obj = s
+        .store
+        .get(kind, &ns, &name)?
+        .ok_or_else(|| ApiError::NotFound(format!("{} {name:?} not found", kind.plural())))?;
+    let mut status = obj.get("status").cloned().unwrap_or(json!({}));
+    merge_patch(&mut status, &patch["status"]);
+    validate_status(kind, &status)?;
+    let (stored, _) = s.store.put_status(
+        kind,
+        &ns,
+        &name,
+        status,
+        patch["metadata"]["resourceVersion"].as_str(),
+    )?;
+    Ok(Json(stored).into_response())
+}
+
+pub async fn get_status(
+    State(s): State<AppState>,
+    Path((ns, plural, name)): Path<(String, String, String)>,
+) -> ApiResult {
+    let kind = kind_of(&plural)?;
+    let obj = s
+        .store
+        .get(kind, &ns, &name)?
+        .ok_or_else(|| ApiError::NotFound(format!("{} {name:?} not found", kind.plural())))?;
+    Ok(Json(obj).into_response())
+}
+
+/// Core v1 events about our objects, for `kubectl describe` and `kubectl get events`.
+pub async fn events(
+    State(s): State<AppState>,
+    ns: Option<Path<String>>,
+    Query(p): Query<ListParams>,
+) -> ApiResult {
+    let ns = ns.map(|Path(n)| n);
+    let fields =
+        Selector::parse(p.field_selector.as_deref().unwrap_or("")).map_err(ApiError::BadRequest)?;
+    let items: Vec<Value> = s
+        .store
+        .events(ns.as_deref(), None, None)?
+        .into_iter()
+        .map(|e| {
+            json!({
+                "apiVersion": "v1", "kind": "Event",
+                "metadata": {"name": format!("{}.{}", e.name, e.id), "namespace": e.namespace, "resourceVersion": e.id.to_string(), "creationTimestamp": e.time},
+                "involvedObject": {"apiVersion": configbot_manifests::API_VERSION, "kind": e.kind, "name": e.name, "namespace": e.namespace, "uid": e.uid},
+                "reason": e.reason, "message": e.message, "type": e.type_, "count": 1,
+                "firstTimestamp": e.time, "lastTimestamp": e.time, "source": {"component": "configbot"},
+            })
+        })
+        .filter(|ev| {
+            let f: BTreeMap<String, String> = ["name", "namespace", "kind", "uid"]
+                .iter()
+                .map(|k| (format!("involvedObject.{k}"), ev["involvedObject"][k].as_str().unwrap_or("").to_string()))
+                .collect();
+            fields.matches_fields(&f)
+        })
+        .collect();
+    Ok(
+        Json(json!({"apiVersion": "v1", "kind": "EventList", "metadata": {}, "items": items}))
+            .into_response(),
+    )
+}
+
+pub async fn namespaces() -> Json<Value> {
+    Json(
+        json!({"apiVersion": "v1", "kind": "NamespaceList", "metadata": {}, "items": [
+            {"apiVersion": "v1", "kind": "Namespace", "metadata": {"name": "default"}, "status": {"phase": "Active"}}
+        ]}),
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn merge_patch_follows_rfc7386() {
+        let mut t = json!({"a": "b", "c": {"d": "e", "f": "g"}});
+        merge_patch(&mut t, &json!({"a": "z", "c": {"f": null}}));
+        assert_eq!(t, json!({"a": "z", "c": {"d": "e"}}));
+        let mut t = json!({"a": [1, 2]});
+        merge_patch(&mut t, &json!({"a": [3]}));
+        assert_eq!(t, json!({"a": [3]}));
+    }
+}

@@ -1,0 +1,285 @@
+//! `configbot get`, `describe` and `delete`: kubectl-like views of objects.
+
+use std::process::ExitCode;
+
+use clap::{Args, ValueEnum};
+use configbot_controller::client::{Client, path};
+use configbot_controller::table;
+use configbot_manifests::Kind;
+use hyper::Method;
+use serde_json::Value;
+
+#[derive(Debug, Clone, Copy, ValueEnum)]
+pub enum Output {
+    Wide,
+    Yaml,
+    Json,
+}
+
+#[derive(Debug, Args)]
+pub struct GetArgs {
+    /// Kind: robotstack (rs) or performancespec (pspec).
+    kind: String,
+    /// Object name; all objects when omitted.
+    name: Option<String>,
+    #[arg(short = 'n', long, default_value = "default")]
+    namespace: String,
+    /// Every namespace.
+    #[arg(short = 'A', long)]
+    all_namespaces: bool,
+    /// Label selector, e.g. robot=spot.
+    #[arg(short = 'l', long)]
+    selector: Option<String>,
+    #[arg(short = 'o', long, value_enum)]
+    output: Option<Output>,
+    /// Keep watching and print every change.
+    #[arg(short = 'w', long)]
+    watch: bool,
+}
+
+#[derive(Debug, Args)]
+pub struct DescribeArgs {
+    kind: String,
+    name: String,
+    #[arg(short = 'n', long, default_value = "default")]
+    namespace: String,
+}
+
+impl DescribeArgs {
+    pub fn for_demo(kind: &str, name: &str) -> DescribeArgs {
+        DescribeArgs {
+            kind: kind.into(),
+            name: name.into(),
+            namespace: "default".into(),
+        }
+    }
+}
+
+#[derive(Debug, Args)]
+pub struct DeleteArgs {
+    kind: String,
+    name: String,
+    #[arg(short = 'n', long, default_value = "default")]
+    namespace: String,
+}
+
+pub fn kind(word: &str) -> anyhow::Result<Kind> {
+    Kind::lookup(word).ok_or_else(|| {
+        anyhow::anyhow!("unknown kind {word:?}; use robotstack (rs) or performancespec (pspec)")
+    })
+}
+
+fn print_objects(
+    kind: Kind,
+    objs: &[Value],
+    output: Option<Output>,
+    with_ns: bool,
+    header: bool,
+) -> anyhow::Result<()> {
+    match output {
+        Some(Output::Json) => {
+            for o in objs {
+                println!("{}", serde_json::to_string_pretty(o)?);
+            }
+        }
+        Some(Output::Yaml) => {
+            for o in objs {
+                print!("---\n{}", serde_saphyr::to_string(o)?);
+            }
+        }
+        _ => {
+            let wide = matches!(output, Some(Output::Wide));
+            let now = time::OffsetDateTime::now_utc();
+            let rows: Vec<Vec<String>> = objs
+                .iter()
+                .map(|o| table::row(kind, o, wide, with_ns, now))
+                .collect();
+            let text = table::render(&table::headers(kind, wide, with_ns), &rows);
+            if header {
+                print!("{text}");
+            } else {
+                print!("{}", text.split_once('\n').map_or("", |(_, r)| r));
+            }
+        }
+    }
+    Ok(())
+}
+
+pub async fn get(client: &Client, a: &GetArgs) -> anyhow::Result<ExitCode> {
+    let kind = kind(&a.kind)?;
+    let ns = (!a.all_namespaces).then_some(a.namespace.as_str());
+    let mut query = Vec::new();
+    if let Some(sel) = &a.selector {
+        query.push(format!("labelSelector={sel}"));
+    }
+    if let Some(n) = &a.name {
+        query.push(format!("fieldSelector=metadata.name%3D{n}"));
+    }
+    let q = if query.is_empty() {
+        String::new()
+    } else {
+        format!("?{}", query.join("&"))
+    };
+    let list = client.get(&format!("{}{q}", path(kind, ns, None))).await?;
+    let items: Vec<Value> = list["items"].as_array().cloned().unwrap_or_default();
+    if let (Some(n), true) = (&a.name, items.is_empty()) {
+        anyhow::bail!(
+            "{} {n:?} not found in namespace {:?}",
+            kind.plural(),
+            a.namespace
+        );
+    }
+    if items.is_empty() && !a.watch {
+        eprintln!("No {} found.", kind.plural());
+    } else {
+        print_objects(kind, &items, a.output, a.all_namespaces, true)?;
+    }
+    if a.watch {
+        let rv = list["metadata"]["resourceVersion"]
+            .as_str()
+            .unwrap_or("0")
+            .to_string();
+        let sep = if q.is_empty() { "?" } else { "&" };
+        let wpath = format!(
+            "{}{q}{sep}watch=true&resourceVersion={rv}",
+            path(kind, ns, None)
+        );
+        let output = a.output;
+        let all = a.all_namespaces;
+        client
+            .watch(&wpath, |ev| {
+                let obj = ev["object"].clone();
+                let _ = print_objects(kind, std::slice::from_ref(&obj), output, all, false);
+                true
+            })
+            .await?;
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+pub async fn describe(client: &Client, a: &DescribeArgs) -> anyhow::Result<ExitCode> {
+    let kind = kind(&a.kind)?;
+    let obj = client
+        .get(&path(kind, Some(&a.namespace), Some(&a.name)))
+        .await?;
+    let m = &obj["metadata"];
+    let s = |v: &Value| {
+        v.as_str()
+            .map(str::to_string)
+            .unwrap_or_else(|| v.to_string())
+    };
+    println!("Name:         {}", s(&m["name"]));
+    println!("Namespace:    {}", s(&m["namespace"]));
+    println!("Kind:         {}", kind.name());
+    for (title, key) in [("Labels:", "labels"), ("Annotations:", "annotations")] {
+        let entries: Vec<String> = m[key]
+            .as_object()
+            .map(|o| o.iter().map(|(k, v)| format!("{k}={}", s(v))).collect())
+            .unwrap_or_default();
+        println!(
+            "{title:<13} {}",
+            if entries.is_empty() {
+                "<none>".into()
+            } else {
+                entries.join("\n              ")
+            }
+        );
+    }
+    println!("Generation:   {}", m["generation"]);
+    println!("Created:      {}", s(&m["creationTimestamp"]));
+    println!("Spec:");
+    match kind {
+        Kind::RobotStack => {
+            for app in obj["spec"]["apps"].as_array().into_iter().flatten() {
+                let nodes: Vec<String> = app["nodes"]
+                    .as_array()
+                    .into_iter()
+                    .flatten()
+                    .map(|n| s(&n["name"]))
+                    .collect();
+                let core = if app["core"].as_bool() == Some(true) {
+                    "core"
+                } else {
+                    "non-core"
+                };
+                println!("  App {} ({core}): {}", s(&app["name"]), nodes.join(", "));
+            }
+        }
+        Kind::PerformanceSpec => {
+            println!("  Stack: {}", s(&obj["spec"]["stackRef"]["name"]));
+            for metric in obj["spec"]["metrics"].as_array().into_iter().flatten() {
+                let t = &metric["target"];
+                let target = if t["atLeast"].is_number() {
+                    format!(">= {}", t["atLeast"])
+                } else {
+                    format!("<= {}", t["atMost"])
+                };
+                let src = metric["source"]["topicRate"]["topic"]
+                    .as_str()
+                    .map(|t| format!("rate of {t}"))
+                    .unwrap_or_else(|| {
+                        format!("cpu of {}", s(&metric["source"]["cpuUsage"]["node"]))
+                    });
+                println!(
+                    "  Metric {} (app {}): {src} {target}",
+                    s(&metric["name"]),
+                    s(&metric["app"])
+                );
+            }
+        }
+    }
+    let st = &obj["status"];
+    println!("Status:");
+    println!("  Phase: {}", st["phase"].as_str().unwrap_or("<none>"));
+    println!("  Conditions:");
+    println!(
+        "    {:<15} {:<8} {:<16} Message",
+        "Type", "Status", "Reason"
+    );
+    for c in st["conditions"].as_array().into_iter().flatten() {
+        println!(
+            "    {:<15} {:<8} {:<16} {}",
+            s(&c["type"]),
+            s(&c["status"]),
+            s(&c["reason"]),
+            s(&c["message"])
+        );
+    }
+    let events = client
+        .get(&format!("/api/v1/namespaces/{}/events?fieldSelector=involvedObject.name%3D{},involvedObject.kind%3D{}", a.namespace, a.name, kind.name()))
+        .await?;
+    println!("Events:");
+    let items = events["items"].as_array().cloned().unwrap_or_default();
+    if items.is_empty() {
+        println!("  <none>");
+    }
+    for e in items.iter().rev().take(15).rev() {
+        println!(
+            "  {:<8} {:<16} {}  {}",
+            s(&e["type"]),
+            s(&e["reason"]),
+            s(&e["lastTimestamp"]),
+            s(&e["message"])
+        );
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+pub async fn delete(client: &Client, a: &DeleteArgs) -> anyhow::Result<ExitCode> {
+    let kind = kind(&a.kind)?;
+    client
+        .send(
+            Method::DELETE,
+            &path(kind, Some(&a.namespace), Some(&a.name)),
+            None,
+            "application/json",
+        )
+        .await?;
+    println!(
+        "{}.{}/{} deleted",
+        kind.singular(),
+        configbot_manifests::GROUP,
+        a.name
+    );
+    Ok(ExitCode::SUCCESS)
+}

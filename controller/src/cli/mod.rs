@@ -1,0 +1,193 @@
+//! Command-line interface: argument definitions and dispatch.
+
+mod apply;
+mod demo;
+mod get;
+
+use std::path::PathBuf;
+
+use clap::{Args, Parser, Subcommand};
+use configbot_controller::client::{Client, Endpoint};
+
+const AFTER_HELP: &str = "\
+Examples:
+  configbot serve                                  # control plane on /run/configbot/configbot.sock
+  configbot apply -f manifests/examples/           # apply every manifest in a folder
+  configbot get rs                                 # list RobotStacks
+  configbot get pspec basic-nav -o yaml            # one PerformanceSpec with its status
+  configbot get pspec -w                           # watch changes
+  configbot describe pspec basic-nav               # conditions and recent events
+  configbot validate -f my-stack.yaml              # offline check, no server needed
+  kubectl --server https://127.0.0.1:8443 --certificate-authority /var/lib/configbot/tls.crt \\
+          --token \"$(cat token)\" get rs         # stock kubectl works too (serve --listen)
+
+Kinds: robotstack (rs), performancespec (pspec).";
+
+/// ConfigBot finds and keeps a resource configuration (CPU limits, data-flow
+/// rates) that makes a ROS robot stack meet its PerformanceSpec.
+#[derive(Debug, Parser)]
+#[command(name = "configbot", version, after_help = AFTER_HELP)]
+pub struct Cli {
+    /// Control plane socket: unix:///path/to.sock (remote access: kubectl over HTTPS).
+    #[arg(
+        long,
+        global = true,
+        env = "CONFIGBOT_SERVER",
+        default_value = "unix:///run/configbot/configbot.sock"
+    )]
+    server: String,
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Debug, Subcommand)]
+enum Command {
+    /// Run the control plane (API server, store and reconcilers).
+    Serve(ServeArgs),
+    /// Create or update objects from YAML files, folders or standard input.
+    #[command(
+        after_help = "Every document is validated before anything is sent: a bad file applies nothing.\n\nExamples:\n  configbot apply -f manifests/examples/\n  cat stack.yaml | configbot apply -f -\n  configbot apply -f fleet/ --prune -l fleet=lab   # delete labelled objects not in fleet/"
+    )]
+    Apply(apply::ApplyArgs),
+    /// List objects or show one.
+    #[command(
+        after_help = "Examples:\n  configbot get rs\n  configbot get pspec basic-nav -o yaml\n  configbot get pspec -w"
+    )]
+    Get(get::GetArgs),
+    /// Show an object's spec summary, conditions and recent events.
+    Describe(get::DescribeArgs),
+    /// Delete an object.
+    Delete(get::DeleteArgs),
+    /// Check manifests offline (no server needed); exits 1 on any error.
+    Validate(ValidateArgs),
+    /// Start a private control plane, apply the example stacks and show their status.
+    Demo(demo::DemoArgs),
+}
+
+#[derive(Debug, Args)]
+struct ServeArgs {
+    /// Database file (SQLite); created if missing.
+    #[arg(
+        long,
+        env = "CONFIGBOT_DB",
+        default_value = "/var/lib/configbot/configbot.db"
+    )]
+    db: PathBuf,
+    /// Unix socket to serve on (mode 0600).
+    #[arg(long, default_value = "/run/configbot/configbot.sock")]
+    socket: PathBuf,
+    /// Also listen on HTTPS at this address, e.g. 127.0.0.1:8443 (requires --token-file).
+    #[arg(long, requires = "token_file")]
+    listen: Option<String>,
+    /// File holding the bearer token TCP clients must send.
+    #[arg(long)]
+    token_file: Option<PathBuf>,
+}
+
+#[derive(Debug, Args)]
+struct ValidateArgs {
+    /// Files or folders (recursive); `-` for standard input.
+    #[arg(short = 'f', long = "filename", required = true)]
+    files: Vec<String>,
+}
+
+pub fn main() -> std::process::ExitCode {
+    let cli = Cli::parse();
+    let rt = match tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+    {
+        Ok(rt) => rt,
+        Err(e) => {
+            eprintln!("error: cannot start the runtime: {e}");
+            return std::process::ExitCode::FAILURE;
+        }
+    };
+    match rt.block_on(run(cli)) {
+        Ok(code) => code,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            std::process::ExitCode::FAILURE
+        }
+    }
+}
+
+fn client(cli: &Cli) -> anyhow::Result<Client> {
+    Ok(Client::new(
+        Endpoint::parse(&cli.server).map_err(anyhow::Error::msg)?,
+    ))
+}
+
+async fn run(cli: Cli) -> anyhow::Result<std::process::ExitCode> {
+    use std::process::ExitCode;
+    match &cli.command {
+        Command::Serve(a) => {
+            let tcp = match (&a.listen, &a.token_file) {
+                (Some(addr), Some(f)) => {
+                    let token = std::fs::read_to_string(f)
+                        .map_err(|e| anyhow::anyhow!("token file {}: {e}", f.display()))?
+                        .trim()
+                        .to_string();
+                    anyhow::ensure!(!token.is_empty(), "token file {} is empty", f.display());
+                    Some((addr.clone(), token))
+                }
+                _ => None,
+            };
+            let cfg = configbot_controller::server::ServerConfig {
+                db: a.db.clone(),
+                socket: a.socket.clone(),
+                tcp,
+            };
+            let server = configbot_controller::server::Server::start(&cfg).await?;
+            eprintln!(
+                "configbot: serving on {} (database {})",
+                a.socket.display(),
+                a.db.display()
+            );
+            if let Some(addr) = &a.listen {
+                eprintln!(
+                    "configbot: also serving on https://{addr} (bearer token required; certificate {})",
+                    a.db.with_file_name("tls.crt").display()
+                );
+            }
+            shutdown_signal().await;
+            server.stop();
+            Ok(ExitCode::SUCCESS)
+        }
+        Command::Apply(a) => apply::run(&client(&cli)?, a).await,
+        Command::Get(a) => get::get(&client(&cli)?, a).await,
+        Command::Describe(a) => get::describe(&client(&cli)?, a).await,
+        Command::Delete(a) => get::delete(&client(&cli)?, a).await,
+        Command::Validate(a) => match apply::load_all(&a.files) {
+            Ok(loaded) => {
+                for l in &loaded {
+                    println!(
+                        "{}: document {}: {} {:?} is valid",
+                        l.source,
+                        l.document,
+                        l.manifest.kind(),
+                        l.manifest.metadata().name
+                    );
+                }
+                Ok(ExitCode::SUCCESS)
+            }
+            Err(e) => {
+                eprintln!("{e}");
+                Ok(ExitCode::FAILURE)
+            }
+        },
+        Command::Demo(a) => demo::run(a).await,
+    }
+}
+
+async fn shutdown_signal() {
+    let mut term = match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
+        Ok(s) => s,
+        Err(_) => return std::future::pending().await,
+    };
+    tokio::select! {
+        _ = tokio::signal::ctrl_c() => {}
+        _ = term.recv() => {}
+    }
+}

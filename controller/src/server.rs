@@ -1,0 +1,94 @@
+//! Wiring of the control plane: open the store, start the reconcilers, serve
+//! the API on a Unix socket (and optionally TCP with a token).
+
+use std::path::PathBuf;
+use std::sync::Arc;
+
+use crate::api::{self, AppState};
+use crate::metrics::Metrics;
+use crate::reconcile::{self, Context};
+use crate::store::Store;
+
+/// Where and how the control plane serves.
+#[derive(Debug, Clone)]
+pub struct ServerConfig {
+    pub db: PathBuf,
+    pub socket: PathBuf,
+    /// `host:port` and bearer token for an additional HTTPS listener
+    /// (certificate `tls.crt`/`tls.key` beside the database, created if missing).
+    pub tcp: Option<(String, String)>,
+}
+
+/// A running control plane.
+#[derive(Debug)]
+pub struct Server {
+    pub state: AppState,
+    tasks: Vec<tokio::task::JoinHandle<()>>,
+}
+
+impl Server {
+    /// Start the control plane in the current tokio runtime.
+    pub async fn start(cfg: &ServerConfig) -> anyhow::Result<Server> {
+        if let Some(dir) = cfg.db.parent() {
+            std::fs::create_dir_all(dir)?;
+        }
+        let store = Arc::new(Store::open(&cfg.db)?);
+        let metrics = Arc::new(Metrics::new());
+        let state = AppState {
+            store: store.clone(),
+            metrics: metrics.clone(),
+        };
+        let mut tasks = vec![tokio::spawn(reconcile::run(Context { store, metrics }))];
+        let router = api::router(state.clone());
+        let socket = cfg.socket.clone();
+        if let Some(dir) = socket.parent() {
+            std::fs::create_dir_all(dir)?;
+        }
+        let r = router.clone();
+        // Bind before returning so clients can connect as soon as start() returns.
+        let (ready_tx, ready_rx) = tokio::sync::oneshot::channel();
+        tasks.push(tokio::spawn(async move {
+            let serve = api::serve_unix(r, &socket);
+            let _ = ready_tx.send(());
+            if let Err(e) = serve.await {
+                eprintln!("configbot: unix socket {}: {e}", socket.display());
+            }
+        }));
+        let _ = ready_rx.await;
+        wait_for_socket(&cfg.socket).await?;
+        if let Some((addr, token)) = &cfg.tcp {
+            let listener = tokio::net::TcpListener::bind(addr).await?;
+            let token = token.clone();
+            let tls =
+                api::tls::TlsFiles::in_dir(cfg.db.parent().unwrap_or(std::path::Path::new(".")));
+            tls.ensure()?;
+            tasks.push(tokio::spawn(async move {
+                if let Err(e) = api::serve_tcp(router, listener, token, &tls).await {
+                    eprintln!("configbot: tcp listener: {e}");
+                }
+            }));
+        }
+        Ok(Server { state, tasks })
+    }
+
+    /// Stop serving and reconciling.
+    pub fn stop(self) {
+        for t in self.tasks {
+            t.abort();
+        }
+    }
+}
+
+async fn wait_for_socket(path: &std::path::Path) -> anyhow::Result<()> {
+    let deadline = tokio::time::Instant::now() + std::time::Duration::from_secs(10);
+    while tokio::net::UnixStream::connect(path).await.is_err() {
+        if tokio::time::Instant::now() > deadline {
+            anyhow::bail!(
+                "the API socket {} did not come up within 10 s",
+                path.display()
+            );
+        }
+        tokio::time::sleep(std::time::Duration::from_millis(10)).await;
+    }
+    Ok(())
+}

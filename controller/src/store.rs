@@ -1,0 +1,692 @@
+//! The embedded object store (SQLite): objects with uid, generation and
+//! resourceVersion, status as a subresource, a change log that watches resume
+//! from, and an event log. Every write is one transaction, so nothing that was
+//! acknowledged is lost on `kill -9`.
+//!
+//! Bodies are JSON objects in Kubernetes shape; validation happens before the
+//! store (in the API layer), the store only manages metadata and versions.
+
+use std::path::Path;
+use std::sync::Mutex;
+
+use configbot_manifests::Kind;
+use rusqlite::{Connection, OptionalExtension, params};
+use serde_json::Value;
+use tokio::sync::broadcast;
+
+/// Store errors; each maps to one Kubernetes status reason.
+#[derive(Debug, thiserror::Error)]
+pub enum StoreError {
+    #[error("{kind} {namespace}/{name} not found")]
+    NotFound {
+        kind: Kind,
+        namespace: String,
+        name: String,
+    },
+    #[error("{kind} {namespace}/{name} already exists")]
+    AlreadyExists {
+        kind: Kind,
+        namespace: String,
+        name: String,
+    },
+    #[error(
+        "{kind} {namespace}/{name} was modified (resourceVersion {current}, request had {given}); read it again and retry"
+    )]
+    Conflict {
+        kind: Kind,
+        namespace: String,
+        name: String,
+        current: String,
+        given: String,
+    },
+    #[error("database {path}: {source}")]
+    Db {
+        path: String,
+        #[source]
+        source: rusqlite::Error,
+    },
+    #[error("stored object is corrupt: {0}")]
+    Corrupt(String),
+}
+
+pub type Result<T, E = StoreError> = std::result::Result<T, E>;
+
+/// A change to an object, as watches stream it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Change {
+    pub resource_version: i64,
+    pub kind: Kind,
+    pub type_: ChangeType,
+    pub object: Value,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ChangeType {
+    Added,
+    Modified,
+    Deleted,
+}
+
+impl ChangeType {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            ChangeType::Added => "ADDED",
+            ChangeType::Modified => "MODIFIED",
+            ChangeType::Deleted => "DELETED",
+        }
+    }
+    fn parse(s: &str) -> ChangeType {
+        match s {
+            "ADDED" => ChangeType::Added,
+            "DELETED" => ChangeType::Deleted,
+            _ => ChangeType::Modified,
+        }
+    }
+}
+
+/// An event about an object (`kubectl get events` style).
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct Event {
+    pub id: i64,
+    pub time: String,
+    pub namespace: String,
+    pub kind: String,
+    pub name: String,
+    pub uid: String,
+    /// `Normal` or `Warning`.
+    pub type_: String,
+    pub reason: String,
+    pub message: String,
+}
+
+/// The store. Cheap to share behind an `Arc`.
+#[derive(Debug)]
+pub struct Store {
+    conn: Mutex<Connection>,
+    path: String,
+    changes: broadcast::Sender<Change>,
+    events: broadcast::Sender<Event>,
+}
+
+const SCHEMA: &str = "
+CREATE TABLE IF NOT EXISTS objects (
+    kind TEXT NOT NULL, namespace TEXT NOT NULL, name TEXT NOT NULL,
+    uid TEXT NOT NULL, resource_version INTEGER NOT NULL, body TEXT NOT NULL,
+    PRIMARY KEY (kind, namespace, name));
+CREATE TABLE IF NOT EXISTS changes (
+    rv INTEGER PRIMARY KEY AUTOINCREMENT, kind TEXT NOT NULL, type TEXT NOT NULL, body TEXT NOT NULL);
+CREATE TABLE IF NOT EXISTS events (
+    id INTEGER PRIMARY KEY AUTOINCREMENT, time TEXT NOT NULL, namespace TEXT NOT NULL,
+    kind TEXT NOT NULL, name TEXT NOT NULL, uid TEXT NOT NULL, type TEXT NOT NULL,
+    reason TEXT NOT NULL, message TEXT NOT NULL);
+";
+
+/// How many change rows are kept for watches to resume from.
+const CHANGE_LOG_KEEP: i64 = 10_000;
+
+/// Current time in RFC 3339, second precision, UTC.
+pub fn now_rfc3339() -> String {
+    let now = time::OffsetDateTime::now_utc()
+        .replace_nanosecond(0)
+        .unwrap_or(time::OffsetDateTime::UNIX_EPOCH);
+    now.format(&time::format_description::well_known::Rfc3339)
+        .unwrap_or_default()
+}
+
+fn kind_of(s: &str) -> Result<Kind> {
+    Kind::from_name(s).ok_or_else(|| StoreError::Corrupt(format!("unknown kind {s:?}")))
+}
+
+fn parse_body(s: &str) -> Result<Value> {
+    serde_json::from_str(s).map_err(|e| StoreError::Corrupt(e.to_string()))
+}
+
+impl Store {
+    /// Open (or create) the database at `path`.
+    pub fn open(path: &Path) -> Result<Store> {
+        let p = path.display().to_string();
+        let db = |source| StoreError::Db {
+            path: p.clone(),
+            source,
+        };
+        let conn = Connection::open(path).map_err(db)?;
+        conn.pragma_update(None, "journal_mode", "WAL")
+            .map_err(db)?;
+        conn.pragma_update(None, "synchronous", "FULL")
+            .map_err(db)?;
+        conn.busy_timeout(std::time::Duration::from_secs(5))
+            .map_err(db)?;
+        conn.execute_batch(SCHEMA).map_err(db)?;
+        Ok(Store {
+            conn: Mutex::new(conn),
+            path: p,
+            changes: broadcast::channel(1024).0,
+            events: broadcast::channel(1024).0,
+        })
+    }
+
+    fn with<T>(&self, f: impl FnOnce(&mut Connection) -> rusqlite::Result<T>) -> Result<T> {
+        let mut conn = self.conn.lock().unwrap_or_else(|p| p.into_inner());
+        f(&mut conn).map_err(|source| StoreError::Db {
+            path: self.path.clone(),
+            source,
+        })
+    }
+
+    /// Live changes after the moment of subscription.
+    pub fn subscribe(&self) -> broadcast::Receiver<Change> {
+        self.changes.subscribe()
+    }
+
+    /// Live events after the moment of subscription.
+    pub fn subscribe_events(&self) -> broadcast::Receiver<Event> {
+        self.events.subscribe()
+    }
+
+    pub fn get(&self, kind: Kind, namespace: &str, name: &str) -> Result<Option<Value>> {
+        let body: Option<String> = self.with(|c| {
+            c.query_row(
+                "SELECT body FROM objects WHERE kind=?1 AND namespace=?2 AND name=?3",
+                params![kind.name(), namespace, name],
+                |r| r.get(0),
+            )
+            .optional()
+        })?;
+        body.as_deref().map(parse_body).transpose()
+    }
+
+    /// Objects of a kind (in one namespace or all), sorted by namespace and name,
+    /// and the store's resourceVersion at the time of listing.
+    pub fn list(&self, kind: Kind, namespace: Option<&str>) -> Result<(Vec<Value>, i64)> {
+        let (bodies, rv) = self.with(|c| {
+            let tx = c.transaction()?;
+            let bodies: Vec<String> = {
+                let mut st = tx.prepare(
+                    "SELECT body FROM objects WHERE kind=?1 AND (?2 IS NULL OR namespace=?2) ORDER BY namespace, name",
+                )?;
+                st.query_map(params![kind.name(), namespace], |r| r.get(0))?
+                    .collect::<rusqlite::Result<_>>()?
+            };
+            let rv: i64 = tx.query_row("SELECT COALESCE(MAX(rv), 0) FROM changes", [], |r| r.get(0))?;
+            tx.commit()?;
+            Ok((bodies, rv))
+        })?;
+        Ok((
+            bodies
+                .iter()
+                .map(|b| parse_body(b))
+                .collect::<Result<_>>()?,
+            rv,
+        ))
+    }
+
+    /// Changes after `rv` still in the log, oldest first; `None` when `rv` is
+    /// older than the log keeps (the watcher must list again: 410 Gone).
+    pub fn changes_since(&self, rv: i64) -> Result<Option<Vec<Change>>> {
+        let rows: Option<Vec<(i64, String, String, String)>> = self.with(|c| {
+            let oldest: i64 =
+                c.query_row("SELECT COALESCE(MIN(rv), 0) FROM changes", [], |r| r.get(0))?;
+            if oldest > 0 && rv + 1 < oldest {
+                return Ok(None);
+            }
+            let mut st =
+                c.prepare("SELECT rv, kind, type, body FROM changes WHERE rv > ?1 ORDER BY rv")?;
+            let rows = st
+                .query_map(params![rv], |r| {
+                    Ok((r.get(0)?, r.get(1)?, r.get(2)?, r.get(3)?))
+                })?
+                .collect::<rusqlite::Result<_>>()?;
+            Ok(Some(rows))
+        })?;
+        rows.map(|rows| {
+            rows.into_iter()
+                .map(|(rv, kind, t, body)| {
+                    Ok(Change {
+                        resource_version: rv,
+                        kind: kind_of(&kind)?,
+                        type_: ChangeType::parse(&t),
+                        object: parse_body(&body)?,
+                    })
+                })
+                .collect()
+        })
+        .transpose()
+    }
+
+    /// Create or update the object's main resource (everything but status).
+    /// `metadata.resourceVersion`, when given, must match the stored one.
+    /// Generation is bumped only when the spec changes; an identical write
+    /// changes nothing. Returns the stored object and whether it changed.
+    pub fn put(&self, kind: Kind, mut obj: Value, create_only: bool) -> Result<(Value, bool)> {
+        let (ns, name) = key_of(&obj);
+        let given_rv = obj["metadata"]["resourceVersion"]
+            .as_str()
+            .map(str::to_string);
+        let out = self.with(|c| {
+            let tx = c.transaction()?;
+            let old: Option<String> = tx
+                .query_row(
+                    "SELECT body FROM objects WHERE kind=?1 AND namespace=?2 AND name=?3",
+                    params![kind.name(), ns, name],
+                    |r| r.get(0),
+                )
+                .optional()?;
+            let old: Option<Value> = old.and_then(|s| serde_json::from_str(&s).ok());
+            let outcome = match &old {
+                Some(_) if create_only => Outcome::Exists,
+                Some(old) => {
+                    let current = old["metadata"]["resourceVersion"]
+                        .as_str()
+                        .unwrap_or("")
+                        .to_string();
+                    if let Some(given) = &given_rv
+                        && *given != current
+                    {
+                        Outcome::Conflict {
+                            current,
+                            given: given.clone(),
+                        }
+                    } else {
+                        merge_server_fields(&mut obj, old);
+                        if same_user_content(&obj, old) {
+                            Outcome::Unchanged(old.clone())
+                        } else {
+                            Outcome::Write(ChangeType::Modified)
+                        }
+                    }
+                }
+                None => {
+                    init_server_fields(&mut obj);
+                    Outcome::Write(ChangeType::Added)
+                }
+            };
+            let result = match outcome {
+                Outcome::Write(t) => {
+                    Outcome::Written(write(&tx, kind, &ns, &name, obj.clone(), t)?)
+                }
+                other => other,
+            };
+            tx.commit()?;
+            Ok(result)
+        })?;
+        self.finish(kind, &ns, &name, out)
+    }
+
+    /// Replace the status subresource only; the spec and generation are untouched.
+    pub fn put_status(
+        &self,
+        kind: Kind,
+        namespace: &str,
+        name: &str,
+        status: Value,
+        given_rv: Option<&str>,
+    ) -> Result<(Value, bool)> {
+        let out = self.with(|c| {
+            let tx = c.transaction()?;
+            let old: Option<String> = tx
+                .query_row(
+                    "SELECT body FROM objects WHERE kind=?1 AND namespace=?2 AND name=?3",
+                    params![kind.name(), namespace, name],
+                    |r| r.get(0),
+                )
+                .optional()?;
+            let Some(old) = old.and_then(|s| serde_json::from_str::<Value>(&s).ok()) else {
+                return Ok(Outcome::Missing);
+            };
+            let current = old["metadata"]["resourceVersion"]
+                .as_str()
+                .unwrap_or("")
+                .to_string();
+            if let Some(given) = given_rv
+                && given != current
+            {
+                return Ok(Outcome::Conflict {
+                    current,
+                    given: given.into(),
+                });
+            }
+            if old.get("status") == Some(&status) {
+                return Ok(Outcome::Unchanged(old));
+            }
+            let mut obj = old;
+            obj["status"] = status;
+            let w = write(&tx, kind, namespace, name, obj, ChangeType::Modified)?;
+            tx.commit()?;
+            Ok(Outcome::Written(w))
+        })?;
+        self.finish(kind, namespace, name, out)
+    }
+
+    pub fn delete(&self, kind: Kind, namespace: &str, name: &str) -> Result<Value> {
+        let out = self.with(|c| {
+            let tx = c.transaction()?;
+            let old: Option<String> = tx
+                .query_row(
+                    "SELECT body FROM objects WHERE kind=?1 AND namespace=?2 AND name=?3",
+                    params![kind.name(), namespace, name],
+                    |r| r.get(0),
+                )
+                .optional()?;
+            let Some(old) = old.and_then(|s| serde_json::from_str::<Value>(&s).ok()) else {
+                return Ok(Outcome::Missing);
+            };
+            tx.execute(
+                "DELETE FROM objects WHERE kind=?1 AND namespace=?2 AND name=?3",
+                params![kind.name(), namespace, name],
+            )?;
+            let mut obj = old;
+            tx.execute(
+                "INSERT INTO changes (kind, type, body) VALUES (?1, 'DELETED', ?2)",
+                params![kind.name(), obj.to_string()],
+            )?;
+            let rv = tx.last_insert_rowid();
+            obj["metadata"]["resourceVersion"] = rv.to_string().into();
+            tx.commit()?;
+            Ok(Outcome::Written(Change {
+                resource_version: rv,
+                kind,
+                type_: ChangeType::Deleted,
+                object: obj,
+            }))
+        })?;
+        self.finish(kind, namespace, name, out).map(|(v, _)| v)
+    }
+
+    fn finish(
+        &self,
+        kind: Kind,
+        namespace: &str,
+        name: &str,
+        out: Outcome,
+    ) -> Result<(Value, bool)> {
+        let (ns, name) = (namespace.to_string(), name.to_string());
+        match out {
+            Outcome::Written(change) => {
+                let obj = change.object.clone();
+                let _ = self.changes.send(change);
+                Ok((obj, true))
+            }
+            Outcome::Unchanged(obj) => Ok((obj, false)),
+            Outcome::Missing => Err(StoreError::NotFound {
+                kind,
+                namespace: ns,
+                name,
+            }),
+            Outcome::Exists => Err(StoreError::AlreadyExists {
+                kind,
+                namespace: ns,
+                name,
+            }),
+            Outcome::Conflict { current, given } => Err(StoreError::Conflict {
+                kind,
+                namespace: ns,
+                name,
+                current,
+                given,
+            }),
+            Outcome::Write(_) => Err(StoreError::Corrupt("unfinished write".into())),
+        }
+    }
+
+    /// Record an event about an object.
+    pub fn record_event(
+        &self,
+        obj: &Value,
+        type_: &str,
+        reason: &str,
+        message: &str,
+    ) -> Result<()> {
+        let (ns, name) = key_of(obj);
+        let kind = obj["kind"].as_str().unwrap_or("").to_string();
+        let uid = obj["metadata"]["uid"].as_str().unwrap_or("").to_string();
+        let time = now_rfc3339();
+        let id = self.with(|c| {
+            c.execute(
+                "INSERT INTO events (time, namespace, kind, name, uid, type, reason, message) VALUES (?1,?2,?3,?4,?5,?6,?7,?8)",
+                params![time, ns, kind, name, uid, type_, reason, message],
+            )?;
+            let id = c.last_insert_rowid();
+            c.execute("DELETE FROM events WHERE id <= ?1", params![id - 10_000])?;
+            Ok(id)
+        })?;
+        let _ = self.events.send(Event {
+            id,
+            time,
+            namespace: ns,
+            kind,
+            name,
+            uid,
+            type_: type_.into(),
+            reason: reason.into(),
+            message: message.into(),
+        });
+        Ok(())
+    }
+
+    /// Events, oldest first, optionally about one object.
+    pub fn events(
+        &self,
+        namespace: Option<&str>,
+        kind: Option<&str>,
+        name: Option<&str>,
+    ) -> Result<Vec<Event>> {
+        self.with(|c| {
+            let mut st = c.prepare(
+                "SELECT id, time, namespace, kind, name, uid, type, reason, message FROM events
+                 WHERE (?1 IS NULL OR namespace=?1) AND (?2 IS NULL OR kind=?2) AND (?3 IS NULL OR name=?3) ORDER BY id",
+            )?;
+            st.query_map(params![namespace, kind, name], |r| {
+                Ok(Event {
+                    id: r.get(0)?,
+                    time: r.get(1)?,
+                    namespace: r.get(2)?,
+                    kind: r.get(3)?,
+                    name: r.get(4)?,
+                    uid: r.get(5)?,
+                    type_: r.get(6)?,
+                    reason: r.get(7)?,
+                    message: r.get(8)?,
+                })
+            })?
+            .collect()
+        })
+    }
+}
+
+enum Outcome {
+    Write(ChangeType),
+    Written(Change),
+    Unchanged(Value),
+    Missing,
+    Exists,
+    Conflict { current: String, given: String },
+}
+
+fn write(
+    tx: &rusqlite::Transaction<'_>,
+    kind: Kind,
+    ns: &str,
+    name: &str,
+    mut obj: Value,
+    t: ChangeType,
+) -> rusqlite::Result<Change> {
+    tx.execute(
+        "INSERT INTO changes (kind, type, body) VALUES (?1, ?2, '{}')",
+        params![kind.name(), t.as_str()],
+    )?;
+    let rv = tx.last_insert_rowid();
+    obj["metadata"]["resourceVersion"] = rv.to_string().into();
+    let body = obj.to_string();
+    tx.execute("UPDATE changes SET body=?1 WHERE rv=?2", params![body, rv])?;
+    tx.execute(
+        "INSERT INTO objects (kind, namespace, name, uid, resource_version, body) VALUES (?1,?2,?3,?4,?5,?6)
+         ON CONFLICT(kind, namespace, name) DO UPDATE SET uid=excluded.uid, resource_version=excluded.resource_version, body=excluded.body",
+        params![kind.name(), ns, name, obj["metadata"]["uid"].as_str().unwrap_or(""), rv, body],
+    )?;
+    tx.execute(
+        "DELETE FROM changes WHERE rv <= ?1",
+        params![rv - CHANGE_LOG_KEEP],
+    )?;
+    Ok(Change {
+        resource_version: rv,
+        kind,
+        type_: t,
+        object: obj,
+    })
+}
+
+/// `(namespace, name)` of an object, namespace defaulted.
+pub fn key_of(obj: &Value) -> (String, String) {
+    let ns = obj["metadata"]["namespace"]
+        .as_str()
+        .unwrap_or(configbot_manifests::DEFAULT_NAMESPACE);
+    let name = obj["metadata"]["name"].as_str().unwrap_or("");
+    (ns.to_string(), name.to_string())
+}
+
+fn init_server_fields(obj: &mut Value) {
+    let ns = key_of(obj).0;
+    let m = &mut obj["metadata"];
+    m["namespace"] = ns.into();
+    m["uid"] = uuid::Uuid::new_v4().to_string().into();
+    m["generation"] = 1.into();
+    m["creationTimestamp"] = now_rfc3339().into();
+    if let Some(o) = obj.as_object_mut() {
+        o.remove("status");
+    }
+}
+
+/// Carry server-owned fields and status over from the stored object; bump generation on spec change.
+fn merge_server_fields(obj: &mut Value, old: &Value) {
+    let ns = key_of(obj).0;
+    let generation = old["metadata"]["generation"].as_i64().unwrap_or(1);
+    let spec_changed = obj.get("spec") != old.get("spec");
+    let m = &mut obj["metadata"];
+    m["namespace"] = ns.into();
+    for f in ["uid", "creationTimestamp", "resourceVersion"] {
+        m[f] = old["metadata"][f].clone();
+    }
+    m["generation"] = (if spec_changed {
+        generation + 1
+    } else {
+        generation
+    })
+    .into();
+    match old.get("status") {
+        Some(s) => obj["status"] = s.clone(),
+        None => {
+            if let Some(o) = obj.as_object_mut() {
+                o.remove("status");
+            }
+        }
+    }
+}
+
+fn same_user_content(a: &Value, b: &Value) -> bool {
+    a.get("spec") == b.get("spec")
+        && a["metadata"]["labels"] == b["metadata"]["labels"]
+        && a["metadata"]["annotations"] == b["metadata"]["annotations"]
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use serde_json::json;
+
+    fn stack(name: &str, model: &str) -> Value {
+        json!({"apiVersion": "configbot.dev/v1alpha1", "kind": "RobotStack",
+               "metadata": {"name": name}, "spec": {"robot": {"model": model}, "apps": []}})
+    }
+
+    fn store() -> (tempfile::TempDir, Store) {
+        let dir = tempfile::tempdir().unwrap();
+        let s = Store::open(&dir.path().join("t.db")).unwrap();
+        (dir, s)
+    }
+
+    #[test]
+    fn generation_moves_with_spec_only_and_identical_writes_change_nothing() {
+        let (_d, s) = store();
+        let (a, changed) = s.put(Kind::RobotStack, stack("a", "spot"), true).unwrap();
+        assert!(changed);
+        assert_eq!(a["metadata"]["generation"], 1);
+        let (b, changed) = s.put(Kind::RobotStack, stack("a", "spot"), false).unwrap();
+        assert!(!changed);
+        assert_eq!(
+            a["metadata"]["resourceVersion"],
+            b["metadata"]["resourceVersion"]
+        );
+        let (c, _) = s
+            .put_status(
+                Kind::RobotStack,
+                "default",
+                "a",
+                json!({"phase": "Accepted"}),
+                None,
+            )
+            .unwrap();
+        assert_eq!(c["metadata"]["generation"], 1);
+        let (d, changed) = s
+            .put(Kind::RobotStack, stack("a", "jackal"), false)
+            .unwrap();
+        assert!(changed);
+        assert_eq!(d["metadata"]["generation"], 2);
+        assert_eq!(
+            d["status"]["phase"], "Accepted",
+            "status survives spec updates"
+        );
+        assert_eq!(d["metadata"]["uid"], a["metadata"]["uid"]);
+    }
+
+    #[test]
+    fn stale_resource_version_conflicts() {
+        let (_d, s) = store();
+        let (a, _) = s.put(Kind::RobotStack, stack("a", "spot"), true).unwrap();
+        let mut newer = stack("a", "jackal");
+        newer["metadata"]["resourceVersion"] = a["metadata"]["resourceVersion"].clone();
+        s.put(Kind::RobotStack, newer.clone(), false).unwrap();
+        newer["spec"]["robot"]["model"] = "cobot".into();
+        assert!(matches!(
+            s.put(Kind::RobotStack, newer, false),
+            Err(StoreError::Conflict { .. })
+        ));
+        assert!(matches!(
+            s.put(Kind::RobotStack, stack("a", "x"), true),
+            Err(StoreError::AlreadyExists { .. })
+        ));
+    }
+
+    #[test]
+    fn change_log_resumes_and_deletes_are_logged() {
+        let (_d, s) = store();
+        s.put(Kind::RobotStack, stack("a", "spot"), true).unwrap();
+        let (_, rv) = s.list(Kind::RobotStack, None).unwrap();
+        s.put(Kind::RobotStack, stack("b", "spot"), true).unwrap();
+        s.delete(Kind::RobotStack, "default", "a").unwrap();
+        let changes = s.changes_since(rv).unwrap().unwrap();
+        let kinds: Vec<_> = changes.iter().map(|c| c.type_).collect();
+        assert_eq!(kinds, vec![ChangeType::Added, ChangeType::Deleted]);
+        assert!(matches!(
+            s.delete(Kind::RobotStack, "default", "a"),
+            Err(StoreError::NotFound { .. })
+        ));
+    }
+
+    #[test]
+    fn data_survives_reopen() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("t.db");
+        {
+            let s = Store::open(&path).unwrap();
+            s.put(Kind::RobotStack, stack("a", "spot"), true).unwrap();
+            s.record_event(&stack("a", "spot"), "Normal", "Applied", "hello")
+                .unwrap();
+        }
+        let s = Store::open(&path).unwrap();
+        assert!(s.get(Kind::RobotStack, "default", "a").unwrap().is_some());
+        assert_eq!(
+            s.events(None, None, Some("a")).unwrap()[0].reason,
+            "Applied"
+        );
+    }
+}

@@ -1,0 +1,349 @@
+//! API tests that drive the router directly (no port), plus the listeners'
+//! access rules and durability across `kill -9` on real processes.
+
+use std::sync::Arc;
+
+use axum::body::Body;
+use axum::http::{Request, StatusCode};
+use configbot_controller::api::{self, AppState};
+use configbot_controller::metrics::Metrics;
+use configbot_controller::store::Store;
+use http_body_util::BodyExt;
+use serde_json::{Value, json};
+use tower::ServiceExt;
+
+const BASE: &str = "/apis/configbot.dev/v1alpha1/namespaces/default";
+
+fn state() -> (tempfile::TempDir, AppState) {
+    let dir = tempfile::tempdir().unwrap();
+    let store = Arc::new(Store::open(&dir.path().join("api.db")).unwrap());
+    (
+        dir,
+        AppState {
+            store,
+            metrics: Arc::new(Metrics::new()),
+        },
+    )
+}
+
+fn stack(name: &str) -> Value {
+    json!({"apiVersion": "configbot.dev/v1alpha1", "kind": "RobotStack", "metadata": {"name": name, "labels": {"robot": "spot"}},
+           "spec": {"apps": [{"name": "nav", "core": true, "nodes": [{"name": "/nav", "run": {"command": "/bin/true"}}]}]}})
+}
+
+async fn call(
+    s: &AppState,
+    method: &str,
+    uri: &str,
+    body: Option<Value>,
+    ct: &str,
+) -> (StatusCode, Value) {
+    let req = Request::builder()
+        .method(method)
+        .uri(uri)
+        .header("content-type", ct)
+        .body(body.map_or(Body::empty(), |b| Body::from(b.to_string())))
+        .unwrap();
+    let resp = api::router(s.clone()).oneshot(req).await.unwrap();
+    let status = resp.status();
+    let bytes = resp.into_body().collect().await.unwrap().to_bytes();
+    (
+        status,
+        serde_json::from_slice(&bytes).unwrap_or(Value::Null),
+    )
+}
+
+#[tokio::test]
+async fn create_get_list_update_delete() {
+    let (_d, s) = state();
+    let (code, created) = call(
+        &s,
+        "POST",
+        &format!("{BASE}/robotstacks"),
+        Some(stack("a")),
+        "application/json",
+    )
+    .await;
+    assert_eq!(code, StatusCode::CREATED, "{created}");
+    assert_eq!(created["metadata"]["generation"], 1);
+    let (code, _) = call(
+        &s,
+        "POST",
+        &format!("{BASE}/robotstacks"),
+        Some(stack("a")),
+        "application/json",
+    )
+    .await;
+    assert_eq!(code, StatusCode::CONFLICT);
+    let (code, list) = call(
+        &s,
+        "GET",
+        &format!("{BASE}/robotstacks?labelSelector=robot%3Dspot"),
+        None,
+        "application/json",
+    )
+    .await;
+    assert_eq!(code, StatusCode::OK);
+    assert_eq!(list["items"].as_array().unwrap().len(), 1);
+    let (_, none) = call(
+        &s,
+        "GET",
+        &format!("{BASE}/robotstacks?labelSelector=robot%3Djackal"),
+        None,
+        "application/json",
+    )
+    .await;
+    assert_eq!(none["items"].as_array().unwrap().len(), 0);
+    // Same content again: nothing changes, generation stays.
+    let (code, same) = call(
+        &s,
+        "PUT",
+        &format!("{BASE}/robotstacks/a"),
+        Some(stack("a")),
+        "application/json",
+    )
+    .await;
+    assert_eq!(code, StatusCode::OK);
+    assert_eq!(
+        same["metadata"]["resourceVersion"],
+        created["metadata"]["resourceVersion"]
+    );
+    // A stale resourceVersion is refused.
+    let mut changed = stack("a");
+    changed["spec"]["robot"] = json!({"model": "jackal"});
+    changed["metadata"]["resourceVersion"] = "999999".into();
+    let (code, body) = call(
+        &s,
+        "PUT",
+        &format!("{BASE}/robotstacks/a"),
+        Some(changed.clone()),
+        "application/json",
+    )
+    .await;
+    assert_eq!(code, StatusCode::CONFLICT);
+    assert_eq!(body["reason"], "Conflict");
+    // Merge patch bumps generation.
+    let (code, patched) = call(
+        &s,
+        "PATCH",
+        &format!("{BASE}/robotstacks/a"),
+        Some(json!({"spec": {"robot": {"model": "jackal"}}})),
+        "application/merge-patch+json",
+    )
+    .await;
+    assert_eq!(code, StatusCode::OK, "{patched}");
+    assert_eq!(patched["metadata"]["generation"], 2);
+    let (code, _) = call(
+        &s,
+        "DELETE",
+        &format!("{BASE}/robotstacks/a"),
+        None,
+        "application/json",
+    )
+    .await;
+    assert_eq!(code, StatusCode::OK);
+    let (code, body) = call(
+        &s,
+        "GET",
+        &format!("{BASE}/robotstacks/a"),
+        None,
+        "application/json",
+    )
+    .await;
+    assert_eq!(
+        (code, body["kind"].as_str()),
+        (StatusCode::NOT_FOUND, Some("Status"))
+    );
+}
+
+#[tokio::test]
+async fn invalid_bodies_get_a_status_and_store_nothing() {
+    let (_d, s) = state();
+    let mut bad = stack("bad");
+    bad["spec"]["apps"][0]["nodes"][0]["name"] = "/../../etc".into();
+    bad["spec"]["apps"][0]["extra"] = true.into();
+    let (code, body) = call(
+        &s,
+        "POST",
+        &format!("{BASE}/robotstacks"),
+        Some(bad),
+        "application/json",
+    )
+    .await;
+    assert_eq!(code, StatusCode::UNPROCESSABLE_ENTITY);
+    assert_eq!(body["kind"], "Status");
+    assert_eq!(body["reason"], "Invalid");
+    assert!(
+        body["message"]
+            .as_str()
+            .unwrap()
+            .contains("spec.apps[0].extra: unknown field `extra`"),
+        "{body}"
+    );
+    let (code, body) = call(
+        &s,
+        "POST",
+        &format!("{BASE}/robotstacks"),
+        None,
+        "application/json",
+    )
+    .await;
+    assert_eq!(code, StatusCode::BAD_REQUEST, "{body}");
+    let (code, _) = call(
+        &s,
+        "PATCH",
+        &format!("{BASE}/robotstacks/x"),
+        Some(json!({})),
+        "application/strategic-merge-patch+json",
+    )
+    .await;
+    assert_eq!(code, StatusCode::UNSUPPORTED_MEDIA_TYPE);
+    let huge = json!({"apiVersion": "configbot.dev/v1alpha1", "kind": "RobotStack", "metadata": {"name": "huge"}, "spec": {"apps": [], "pad": "x".repeat(4 << 20)}});
+    let (code, body) = call(
+        &s,
+        "POST",
+        &format!("{BASE}/robotstacks"),
+        Some(huge),
+        "application/json",
+    )
+    .await;
+    assert_eq!(code, StatusCode::PAYLOAD_TOO_LARGE, "{body}");
+    assert_eq!(body["kind"], "Status");
+    assert!(
+        s.store
+            .list(configbot_manifests::Kind::RobotStack, None)
+            .unwrap()
+            .0
+            .is_empty(),
+        "nothing stored"
+    );
+}
+
+#[tokio::test]
+async fn status_is_a_subresource() {
+    let (_d, s) = state();
+    call(
+        &s,
+        "POST",
+        &format!("{BASE}/robotstacks"),
+        Some(stack("a")),
+        "application/json",
+    )
+    .await;
+    let mut with_status = stack("a");
+    with_status["status"] = json!({"phase": "Running", "apps": 1, "nodes": 1});
+    let (code, body) = call(
+        &s,
+        "PUT",
+        &format!("{BASE}/robotstacks/a/status"),
+        Some(with_status),
+        "application/json",
+    )
+    .await;
+    assert_eq!(code, StatusCode::OK, "{body}");
+    assert_eq!(body["status"]["phase"], "Running");
+    assert_eq!(body["metadata"]["generation"], 1);
+    // A main-resource write cannot change status.
+    let mut sneaky = stack("a");
+    sneaky["status"] = json!({"phase": "Hacked"});
+    let (_, body) = call(
+        &s,
+        "PUT",
+        &format!("{BASE}/robotstacks/a"),
+        Some(sneaky),
+        "application/json",
+    )
+    .await;
+    assert_eq!(body["status"]["phase"], "Running");
+}
+
+#[tokio::test]
+async fn discovery_and_tables_for_kubectl() {
+    let (_d, s) = state();
+    let (_, groups) = call(&s, "GET", "/apis", None, "application/json").await;
+    assert_eq!(groups["groups"][0]["name"], "configbot.dev");
+    let (_, res) = call(
+        &s,
+        "GET",
+        "/apis/configbot.dev/v1alpha1",
+        None,
+        "application/json",
+    )
+    .await;
+    let names: Vec<&str> = res["resources"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|r| r["name"].as_str().unwrap())
+        .collect();
+    assert!(
+        names.contains(&"robotstacks") && names.contains(&"performancespecs/status"),
+        "{names:?}"
+    );
+    call(
+        &s,
+        "POST",
+        &format!("{BASE}/robotstacks"),
+        Some(stack("a")),
+        "application/json",
+    )
+    .await;
+    let req = Request::builder()
+        .uri(format!("{BASE}/robotstacks"))
+        .header(
+            "accept",
+            "application/json;as=Table;v=v1;g=meta.k8s.io,application/json",
+        )
+        .body(Body::empty())
+        .unwrap();
+    let resp = api::router(s.clone()).oneshot(req).await.unwrap();
+    let table: Value =
+        serde_json::from_slice(&resp.into_body().collect().await.unwrap().to_bytes()).unwrap();
+    assert_eq!(table["kind"], "Table");
+    assert_eq!(table["rows"][0]["cells"][0], "a");
+    let (_, metrics) = {
+        let req = Request::builder()
+            .uri("/metrics")
+            .body(Body::empty())
+            .unwrap();
+        let resp = api::router(s.clone()).oneshot(req).await.unwrap();
+        (
+            0,
+            String::from_utf8(
+                resp.into_body()
+                    .collect()
+                    .await
+                    .unwrap()
+                    .to_bytes()
+                    .to_vec(),
+            )
+            .unwrap(),
+        )
+    };
+    assert!(
+        metrics.contains("configbot_api_requests_total"),
+        "{metrics}"
+    );
+}
+
+#[tokio::test]
+async fn tcp_requires_the_bearer_token() {
+    let (_d, s) = state();
+    let app = api::with_token(api::router(s), "s3cret".into());
+    for (auth, want) in [
+        (None, StatusCode::UNAUTHORIZED),
+        (Some("Bearer wrong"), StatusCode::UNAUTHORIZED),
+        (Some("Bearer s3cret"), StatusCode::OK),
+    ] {
+        let mut req = Request::builder().uri("/apis");
+        if let Some(a) = auth {
+            req = req.header("authorization", a);
+        }
+        let resp = app
+            .clone()
+            .oneshot(req.body(Body::empty()).unwrap())
+            .await
+            .unwrap();
+        assert_eq!(resp.status(), want, "{auth:?}");
+    }
+}
