@@ -21,28 +21,66 @@ impl<F: Fn(&str) -> Option<bool>> AppOf for F {
     }
 }
 
+/// Selects edges: a topic, optionally narrowed to one subscriber (the shape
+/// of the PerformanceSpec's `EdgeSelector`).
+#[derive(Debug, Clone, PartialEq, Eq, PartialOrd, Ord)]
+pub struct EdgeSelector {
+    pub topic: String,
+    pub subscriber: Option<String>,
+}
+
+impl EdgeSelector {
+    /// Every subscriber of `topic`.
+    pub fn topic(topic: &str) -> Self {
+        Self {
+            topic: topic.into(),
+            subscriber: None,
+        }
+    }
+
+    /// Exactly one edge.
+    pub fn edge(e: &EdgeId) -> Self {
+        Self {
+            topic: e.topic.clone(),
+            subscriber: Some(e.subscriber.clone()),
+        }
+    }
+
+    pub fn matches(&self, e: &EdgeId) -> bool {
+        self.topic == e.topic && self.subscriber.as_ref().is_none_or(|s| *s == e.subscriber)
+    }
+}
+
 /// Policy knobs.
 #[derive(Debug, Clone, PartialEq)]
 pub struct PolicyConfig {
     /// Topics at or below this rate are not adapted (default 5 Hz).
     pub min_rate_hz: f64,
-    /// Edges always adapted (if they exist in the graph).
-    pub include: BTreeSet<EdgeId>,
-    /// Edges never adapted.
-    pub exclude: BTreeSet<EdgeId>,
-    /// Topics never adapted (e.g. `/rosout`, `/clock`).
-    pub exclude_topics: BTreeSet<String>,
+    /// Edges always adapted (if their topic has a publisher).
+    pub include: Vec<EdgeSelector>,
+    /// Edges never adapted; wins over `include`. Defaults to `/rosout`,
+    /// `/rosout_agg` and `/clock`.
+    pub exclude: Vec<EdgeSelector>,
+}
+
+impl PolicyConfig {
+    pub fn excluded(&self, e: &EdgeId) -> bool {
+        self.exclude.iter().any(|s| s.matches(e))
+    }
+
+    pub fn included(&self, e: &EdgeId) -> bool {
+        self.include.iter().any(|s| s.matches(e))
+    }
 }
 
 impl Default for PolicyConfig {
     fn default() -> Self {
         Self {
             min_rate_hz: 5.0,
-            include: BTreeSet::new(),
-            exclude: BTreeSet::new(),
-            exclude_topics: ["/rosout", "/rosout_agg", "/clock"]
+            include: Vec::new(),
+            exclude: ["/rosout", "/rosout_agg", "/clock"]
                 .into_iter()
-                .map(String::from)
+                .map(EdgeSelector::topic)
                 .collect(),
         }
     }
@@ -64,17 +102,11 @@ pub fn select_adaptor_edges(
                 topic: t.name.clone(),
                 subscriber: sub.clone(),
             };
-            if cfg.exclude.contains(&id) {
+            if cfg.excluded(&id) || t.publishers.is_empty() {
                 continue;
             }
-            if t.publishers.is_empty() {
-                continue;
-            }
-            if cfg.include.contains(&id) {
+            if cfg.included(&id) {
                 out.insert(id);
-                continue;
-            }
-            if cfg.exclude_topics.contains(&t.name) {
                 continue;
             }
             let fast = rates.get(&t.name).is_some_and(|r| *r > cfg.min_rate_hz);
@@ -161,15 +193,32 @@ mod tests {
     #[test]
     fn include_and_exclude_lists_win() {
         let cfg = PolicyConfig {
-            include: [e("/odom", "/nav"), e("/orphan", "/detector")]
-                .into_iter()
-                .collect(),
-            exclude: [e("/camera", "/detector")].into_iter().collect(),
+            include: vec![
+                EdgeSelector::edge(&e("/odom", "/nav")),
+                EdgeSelector::edge(&e("/orphan", "/detector")),
+                EdgeSelector::topic("/slow"),
+            ],
+            exclude: vec![
+                EdgeSelector::edge(&e("/camera", "/detector")),
+                EdgeSelector::topic("/slow"),
+            ],
+            ..PolicyConfig::default()
+        };
+        // a custom exclude list replaces the default one: /rosout (100 Hz,
+        // non-core publisher) is now adapted too
+        let sel = select_adaptor_edges(&g(), &rates(), &apps, &cfg);
+        assert!(sel.contains(&e("/rosout", "/logger")));
+        let mut cfg = cfg;
+        cfg.exclude.extend(PolicyConfig::default().exclude);
+        let sel = select_adaptor_edges(&g(), &rates(), &apps, &cfg);
+        // orphan has no publisher: nothing to adapt; exclude wins over include.
+        assert_eq!(sel, [e("/odom", "/nav")].into_iter().collect());
+        let cfg = PolicyConfig {
+            include: vec![EdgeSelector::topic("/slow")],
             ..PolicyConfig::default()
         };
         let sel = select_adaptor_edges(&g(), &rates(), &apps, &cfg);
-        // orphan has no publisher: nothing to adapt.
-        assert_eq!(sel, [e("/odom", "/nav")].into_iter().collect());
+        assert!(sel.contains(&e("/slow", "/detector")), "topic-wide include");
     }
 
     #[test]

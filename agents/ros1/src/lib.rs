@@ -112,10 +112,10 @@ impl Default for Ros1Config {
 /// a live rospy edge only takes over after the subscriber resubscribes.
 pub fn placement_from_apps(apps: Arc<dyn AppOf + Send + Sync>, cfg: PolicyConfig) -> Placement {
     Arc::new(move |id: &EdgeId, pubs: &[String]| {
-        if cfg.exclude.contains(id) || cfg.exclude_topics.contains(&id.topic) {
+        if cfg.excluded(id) {
             return false;
         }
-        if cfg.include.contains(id) {
+        if cfg.included(id) {
             return true;
         }
         let non_core = |n: &str| apps.is_core(n) == Some(false);
@@ -466,6 +466,7 @@ mod tests {
 
     #[test]
     fn placement_follows_apps_and_lists() {
+        use configbot_dataplane::policy::EdgeSelector;
         let apps: Arc<dyn AppOf + Send + Sync> = Arc::new(|n: &str| match n {
             "/det" => Some(false),
             "/nav" | "/cam" => Some(true),
@@ -476,8 +477,11 @@ mod tests {
             subscriber: s.into(),
         };
         let cfg = PolicyConfig {
-            include: [e("/odom", "/nav")].into_iter().collect(),
-            exclude: [e("/img", "/det")].into_iter().collect(),
+            include: vec![EdgeSelector::edge(&e("/odom", "/nav"))],
+            exclude: vec![
+                EdgeSelector::edge(&e("/img", "/det")),
+                EdgeSelector::topic("/rosout"),
+            ],
             ..PolicyConfig::default()
         };
         let place = placement_from_apps(apps, cfg);
