@@ -408,3 +408,72 @@ fn adaptor_handles_latched_topics_and_publishers_coming_and_going() {
         "reconnected subscriber not limited to 2 Hz: {r}"
     );
 }
+
+/// roscpp (topic_tools/relay subscribes with md5sum `*`): roscpp drops
+/// publishers missing from publisherUpdate, so an adaptor inserted into a
+/// live roscpp edge takes over at once, and removing it restores the edge.
+#[test]
+fn roscpp_relay_gets_live_adaptor_insertion_and_removal() {
+    const RELAY: &str = "/usr/lib/topic_tools/relay";
+    if !ros_available() {
+        return;
+    }
+    if !std::path::Path::new(RELAY).exists() {
+        eprintln!("SKIPPED: {RELAY} not found; install topic-tools");
+        return;
+    }
+    let a = start_agent(Duration::from_secs(30));
+    let _g = a.rt.enter();
+    let env = &a.env;
+    let input = format!("/{}", unique("relay_in"));
+    let output = format!("/{}", unique("relay_out"));
+    let relay_name = unique("relay");
+    let _talker = env.spawn(
+        "rostopic",
+        &["pub", "-r", "30", &input, "std_msgs/String", "data: frame"],
+    );
+    let _relay = env.spawn(RELAY, &[&input, &output, &format!("__name:={relay_name}")]);
+    let l = env.script("listener.py", &[&unique("relay_listener"), &output]);
+    let last_sec =
+        |p: &Proc| p.count_between(Instant::now() - Duration::from_secs(1), Instant::now());
+    wait_for("30 Hz through the relay", Duration::from_secs(20), || {
+        (27..=33).contains(&last_sec(&l))
+    });
+
+    let edge = EdgeId {
+        topic: input.clone(),
+        subscriber: format!("/{relay_name}"),
+    };
+    let t0 = Instant::now();
+    a.dp.set_adaptor(
+        &edge,
+        AdaptorSetting {
+            rate_hz: Some(10.0),
+        },
+    )
+    .unwrap();
+    wait_for(
+        "relay moved onto the adaptor",
+        Duration::from_secs(10),
+        || (8..=12).contains(&last_sec(&l)),
+    );
+    eprintln!("live insertion took effect within {:?}", t0.elapsed());
+    let r = measure_rate(&l, 4.0);
+    eprintln!("relay output behind a 10 Hz adaptor: {r:.2} Hz");
+    assert!(
+        (9.0..=11.0).contains(&r),
+        "relay output behind 10 Hz adaptor: {r}"
+    );
+
+    a.dp.remove_adaptor(&edge).unwrap();
+    wait_for(
+        "relay back on the publisher",
+        Duration::from_secs(10),
+        || (27..=33).contains(&last_sec(&l)),
+    );
+    let r = measure_rate(&l, 3.0);
+    assert!(
+        (28.5..=31.5).contains(&r),
+        "relay output after removal: {r}"
+    );
+}
