@@ -477,3 +477,42 @@ fn roscpp_relay_gets_live_adaptor_insertion_and_removal() {
         "relay output after removal: {r}"
     );
 }
+
+/// The periodic refresh (period injected: 1 s) notices a node that died
+/// without unregistering: its pid goes and a NodeChanged event says so.
+#[test]
+fn periodic_refresh_notices_dead_nodes() {
+    if !ros_available() {
+        return;
+    }
+    let a = start_agent(Duration::from_secs(1));
+    let _g = a.rt.enter();
+    let name = unique("mortal");
+    let node = format!("/{name}");
+    let mut p = a.env.script("listener.py", &[&name, "/mortal_topic"]);
+    wait_for("pid known", Duration::from_secs(20), || {
+        a.dp.graph().nodes.get(&node).and_then(|n| n.pid) == Some(p.pid())
+    });
+    let mut events = a.dp.subscribe_events();
+    p.kill();
+    wait_for(
+        "pid dropped by the refresh",
+        Duration::from_secs(10),
+        || {
+            a.dp.graph()
+                .nodes
+                .get(&node)
+                .is_some_and(|n| n.pid.is_none())
+        },
+    );
+    let mut saw = false;
+    let end = Instant::now() + Duration::from_secs(5);
+    while !saw && Instant::now() < end {
+        match events.try_recv() {
+            Ok(GraphEvent::NodeChanged(n)) => saw |= n.name == node && n.pid.is_none(),
+            Ok(_) => {}
+            Err(_) => std::thread::sleep(Duration::from_millis(50)),
+        }
+    }
+    assert!(saw, "no NodeChanged event for {node}");
+}
