@@ -7,8 +7,9 @@ mod common;
 use std::time::{Duration, Instant};
 
 use common::*;
+use configbot_dataplane::policy::PolicyConfig;
 use configbot_dataplane::{AdaptorSetting, DataPlane, EdgeId, GraphEvent};
-use configbot_ros1::{Ros1Config, Ros1DataPlane};
+use configbot_ros1::{Placement, Ros1Config, Ros1DataPlane, placement_from_apps};
 
 struct Agent {
     dp: Ros1DataPlane,
@@ -19,6 +20,10 @@ struct Agent {
 }
 
 fn start_agent(refresh: Duration) -> Agent {
+    start_agent_with(refresh, None)
+}
+
+fn start_agent_with(refresh: Duration, placement: Option<Placement>) -> Agent {
     let dir = tempfile::tempdir().unwrap();
     let rt = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
@@ -30,6 +35,7 @@ fn start_agent(refresh: Duration) -> Agent {
         master_uri: format!("http://localhost:{port}/"),
         bind_host: "127.0.0.1".into(),
         refresh_period: refresh,
+        placement,
         ..Ros1Config::default()
     };
     let registry = prometheus::Registry::new();
@@ -515,4 +521,65 @@ fn periodic_refresh_notices_dead_nodes() {
         }
     }
     assert!(saw, "no NodeChanged event for {node}");
+}
+
+/// With the app mapping injected, a non-core subscriber gets a pass-through
+/// adaptor when it subscribes (rospy), which can then be tuned live.
+#[test]
+fn placement_adapts_non_core_subscribers_at_subscribe_time() {
+    if !ros_available() {
+        return;
+    }
+    let detector = unique("detector");
+    let nav = unique("nav");
+    let det_node = format!("/{detector}");
+    let d2 = det_node.clone();
+    let apps: std::sync::Arc<dyn configbot_dataplane::policy::AppOf + Send + Sync> =
+        std::sync::Arc::new(move |n: &str| Some(n != d2));
+    let a = start_agent_with(
+        Duration::from_secs(30),
+        Some(placement_from_apps(apps, PolicyConfig::default())),
+    );
+    let _g = a.rt.enter();
+    let topic = format!("/{}", unique("image"));
+    let _talker = a.env.spawn(
+        "rostopic",
+        &["pub", "-r", "30", &topic, "std_msgs/String", "data: px"],
+    );
+    let ld = a.env.script("listener.py", &[&detector, &topic]);
+    let ln = a.env.script("listener.py", &[&nav, &topic]);
+    let last_sec =
+        |p: &Proc| p.count_between(Instant::now() - Duration::from_secs(1), Instant::now());
+    wait_for("both at 30 Hz", Duration::from_secs(20), || {
+        (27..=33).contains(&last_sec(&ld)) && (27..=33).contains(&last_sec(&ln))
+    });
+    let det_edge = EdgeId {
+        topic: topic.clone(),
+        subscriber: det_node,
+    };
+    let nav_edge = EdgeId {
+        topic: topic.clone(),
+        subscriber: format!("/{nav}"),
+    };
+    let adaptors = a.dp.adaptors();
+    assert_eq!(
+        adaptors.get(&det_edge),
+        Some(&AdaptorSetting { rate_hz: None })
+    );
+    assert!(
+        !adaptors.contains_key(&nav_edge),
+        "core subscriber adapted: {adaptors:?}"
+    );
+    a.dp.set_adaptor(&det_edge, AdaptorSetting { rate_hz: Some(7.0) })
+        .unwrap();
+    wait_for("detector limited", Duration::from_secs(5), || {
+        (5..=9).contains(&last_sec(&ld))
+    });
+    let (rd, rn) = std::thread::scope(|s| {
+        let x = s.spawn(|| measure_rate(&ld, 4.0));
+        let y = s.spawn(|| measure_rate(&ln, 4.0));
+        (x.join().unwrap(), y.join().unwrap())
+    });
+    assert!((6.0..=8.0).contains(&rd), "detector behind 7 Hz: {rd}");
+    assert!((28.5..=31.5).contains(&rn), "nav untouched: {rn}");
 }
