@@ -1,5 +1,5 @@
 //! Adaptor selection policy (paper §ConfigBot design): put an adaptor on an
-//! edge when its topic runs above `min_rate_hz` and its publisher or
+//! edge when its topic runs above `min_topic_rate_hz` and its publisher or
 //! subscriber belongs to a non-core app; explicit include/exclude lists win.
 //! Pure: the caller supplies the graph, measured rates and the app mapping.
 
@@ -55,7 +55,7 @@ impl EdgeSelector {
 #[derive(Debug, Clone, PartialEq)]
 pub struct PolicyConfig {
     /// Topics at or below this rate are not adapted (default 5 Hz).
-    pub min_rate_hz: f64,
+    pub min_topic_rate_hz: f64,
     /// Edges always adapted (if their topic has a publisher).
     pub include: Vec<EdgeSelector>,
     /// Edges never adapted; wins over `include`. Defaults to `/rosout`,
@@ -76,7 +76,7 @@ impl PolicyConfig {
 impl Default for PolicyConfig {
     fn default() -> Self {
         Self {
-            min_rate_hz: 5.0,
+            min_topic_rate_hz: 5.0,
             include: Vec::new(),
             exclude: ["/rosout", "/rosout_agg", "/clock"]
                 .into_iter()
@@ -109,7 +109,9 @@ pub fn select_adaptor_edges(
                 out.insert(id);
                 continue;
             }
-            let fast = rates.get(&t.name).is_some_and(|r| *r > cfg.min_rate_hz);
+            let fast = rates
+                .get(&t.name)
+                .is_some_and(|r| *r > cfg.min_topic_rate_hz);
             let involves_non_core = non_core(sub) || t.publishers.iter().any(|p| non_core(p));
             if fast && involves_non_core {
                 out.insert(id);
