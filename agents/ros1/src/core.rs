@@ -1,0 +1,235 @@
+//! The shared core of the ROS 1 data plane: master state behind a lock, its
+//! persistence, adaptor relays and topic meters, and the IO that carries out
+//! the master's [`Effect`]s (publisherUpdate, paramUpdate, shutdown calls).
+
+use std::collections::BTreeMap;
+use std::sync::{Arc, Mutex, MutexGuard};
+use std::time::Duration;
+
+use configbot_dataplane::{AdaptorSetting, EdgeId};
+use tokio::sync::Notify;
+
+use crate::adaptor::{ADAPTOR_PREFIX, AdaptorMetrics, EdgeRelay, Relay, Relays};
+use crate::http;
+use crate::meter::Meter;
+use crate::state::{Effect, MasterState};
+use crate::store::Store;
+use crate::upstream::UpstreamSet;
+use crate::xmlrpc::Value;
+
+/// Decides at subscribe time whether an edge gets a (pass-through) adaptor:
+/// `(edge, publisher node names) -> bool`.
+pub type Placement = Arc<dyn Fn(&EdgeId, &[String]) -> bool + Send + Sync>;
+
+/// Caller id the master uses in its callbacks.
+pub const MASTER_CALLER_ID: &str = "/master";
+
+pub(crate) struct Core {
+    pub state: Mutex<MasterState>,
+    pub store: Mutex<Store>,
+    pub master_uri: String,
+    pub adaptor_uri: String,
+    pub relays: Relays,
+    pub settings: Mutex<BTreeMap<EdgeId, AdaptorSetting>>,
+    pub placement: Placement,
+    pub metrics: AdaptorMetrics,
+    pub meters: Mutex<BTreeMap<String, Arc<Meter>>>,
+    pub meter_window_s: f64,
+    pub wake: Notify,
+    pub timeout: Duration,
+}
+
+impl std::fmt::Debug for Core {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Core")
+            .field("master_uri", &self.master_uri)
+            .field("adaptor_uri", &self.adaptor_uri)
+            .finish_non_exhaustive()
+    }
+}
+
+/// Locks, recovering from poisoning (a panicked holder left valid data: every
+/// critical section is a plain map update).
+pub(crate) fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
+}
+
+impl Core {
+    /// Writes the master state to the database (errors are reported on
+    /// stderr: the in-memory master keeps serving).
+    pub fn persist(&self) {
+        let snapshot = lock(&self.state).clone();
+        if let Err(e) = lock(&self.store).save(&snapshot) {
+            eprintln!("configbot-ros1: persisting master state: {e}");
+        }
+    }
+
+    pub fn persist_adaptors(&self) {
+        let s = lock(&self.settings).clone();
+        if let Err(e) = lock(&self.store).save_adaptors(&s) {
+            eprintln!("configbot-ros1: persisting adaptor settings: {e}");
+        }
+    }
+
+    /// The publisher list `subscriber` should see for `topic`: the adaptor
+    /// when the edge is adapted and has publishers, else the real ones.
+    pub fn publishers_for(self: &Arc<Self>, topic: &str, subscriber: &str) -> Vec<String> {
+        let (apis, msg_type) = {
+            let st = lock(&self.state);
+            (st.publisher_apis(topic), st.type_of(topic).to_string())
+        };
+        let id = EdgeId {
+            topic: topic.into(),
+            subscriber: subscriber.into(),
+        };
+        let setting = lock(&self.settings).get(&id).copied();
+        match setting {
+            Some(s) if !apis.is_empty() => {
+                let relay = self.ensure_relay(&id, s);
+                relay.upstream.set_publishers(&apis, &msg_type);
+                vec![self.adaptor_uri.clone()]
+            }
+            _ => apis,
+        }
+    }
+
+    fn ensure_relay(&self, id: &EdgeId, s: AdaptorSetting) -> Arc<Relay> {
+        let mut relays = lock(&self.relays);
+        relays
+            .entry(id.clone())
+            .or_insert_with(|| {
+                let edge = Arc::new(EdgeRelay::new(id.clone(), s, self.metrics.clone()));
+                let caller = format!("{ADAPTOR_PREFIX}{}", id.subscriber);
+                let upstream = UpstreamSet::new(&caller, &id.topic, edge.clone(), self.timeout);
+                Arc::new(Relay { edge, upstream })
+            })
+            .clone()
+    }
+
+    /// Re-points relays and meters of `topic` at its current publishers.
+    pub fn refresh_topic(&self, topic: &str) {
+        let (apis, ty) = {
+            let st = lock(&self.state);
+            (st.publisher_apis(topic), st.type_of(topic).to_string())
+        };
+        let relays: Vec<Arc<Relay>> = lock(&self.relays)
+            .iter()
+            .filter(|(id, _)| id.topic == topic)
+            .map(|(_, r)| r.clone())
+            .collect();
+        for r in relays {
+            r.upstream.set_publishers(&apis, &ty);
+        }
+        let meter = lock(&self.meters).get(topic).cloned();
+        if let Some(m) = meter {
+            m.upstream.set_publishers(&apis, &ty);
+        }
+    }
+
+    /// Carries out effects in background tasks.
+    pub fn run_effects(self: &Arc<Self>, fx: Vec<Effect>) {
+        for e in fx {
+            let core = self.clone();
+            match e {
+                Effect::Shutdown { api, reason } => {
+                    tokio::spawn(async move {
+                        let _ = http::call(
+                            &api,
+                            "shutdown",
+                            &[Value::str(MASTER_CALLER_ID), Value::str(reason)],
+                            core.timeout,
+                        )
+                        .await;
+                    });
+                }
+                Effect::PublisherUpdate { topic, subscriber } => {
+                    self.refresh_topic(&topic);
+                    let api = lock(&self.state).nodes.get(&subscriber).cloned();
+                    let Some(api) = api else { continue };
+                    let list = self.publishers_for(&topic, &subscriber);
+                    tokio::spawn(async move {
+                        let l = Value::Array(list.into_iter().map(Value::Str).collect());
+                        let _ = http::call(
+                            &api,
+                            "publisherUpdate",
+                            &[Value::str(MASTER_CALLER_ID), Value::str(topic), l],
+                            core.timeout,
+                        )
+                        .await;
+                    });
+                }
+                Effect::ParamUpdate { node, key, value } => {
+                    let api = lock(&self.state).nodes.get(&node).cloned();
+                    let Some(api) = api else { continue };
+                    tokio::spawn(async move {
+                        let _ = http::call(
+                            &api,
+                            "paramUpdate",
+                            &[Value::str(MASTER_CALLER_ID), Value::str(key), value],
+                            core.timeout,
+                        )
+                        .await;
+                    });
+                }
+            }
+        }
+    }
+
+    /// Sets (creating) the adaptor of `id`.
+    pub fn set_adaptor(self: &Arc<Self>, id: &EdgeId, s: AdaptorSetting) {
+        let existed = lock(&self.settings).insert(id.clone(), s).is_some();
+        self.persist_adaptors();
+        let relay = lock(&self.relays).get(id).cloned();
+        if let Some(r) = relay {
+            r.edge.set(s);
+        }
+        if !existed {
+            // Point the subscriber at the adaptor (roscpp drops the direct
+            // connection; rospy only adds connections, so for rospy the
+            // adaptor applies from the subscriber's next (re)subscription).
+            self.run_effects(vec![Effect::PublisherUpdate {
+                topic: id.topic.clone(),
+                subscriber: id.subscriber.clone(),
+            }]);
+        }
+    }
+
+    /// Removes the adaptor of `id` and points the subscriber back at the
+    /// real publishers; returns whether there was one.
+    pub fn remove_adaptor(self: &Arc<Self>, id: &EdgeId) -> bool {
+        let had = lock(&self.settings).remove(id).is_some();
+        self.persist_adaptors();
+        // Tell the subscriber first, then close the relay: the subscriber
+        // connects to the publishers and sees EOF from the adaptor.
+        self.run_effects(vec![Effect::PublisherUpdate {
+            topic: id.topic.clone(),
+            subscriber: id.subscriber.clone(),
+        }]);
+        let relay = lock(&self.relays).remove(id);
+        if let Some(r) = relay {
+            let timeout = self.timeout;
+            tokio::spawn(async move {
+                tokio::time::sleep(timeout.min(Duration::from_millis(500))).await;
+                r.edge.close_downstream();
+            });
+        }
+        had
+    }
+
+    /// Starts (if needed) measuring `topic`.
+    pub fn meter(&self, topic: &str) -> Arc<Meter> {
+        let created;
+        let m = {
+            let mut meters = lock(&self.meters);
+            created = !meters.contains_key(topic);
+            meters
+                .entry(topic.to_string())
+                .or_insert_with(|| Arc::new(Meter::new(topic, self.meter_window_s, self.timeout)))
+                .clone()
+        };
+        if created {
+            self.refresh_topic(topic);
+        }
+        m
+    }
+}

@@ -1,0 +1,518 @@
+//! ROS 1 data plane for the ConfigBot agent: a ROS Master + Parameter Server
+//! that persists to SQLite, a graph monitor (nodes, topics, edges, pids),
+//! TCPROS topic meters and transparent per-subscriber rate adaptors, behind
+//! [`configbot_dataplane::DataPlane`]. Entry point: [`Ros1DataPlane::start`].
+
+pub mod adaptor;
+mod core;
+pub mod http;
+mod master;
+pub mod meter;
+pub mod params;
+pub mod state;
+pub mod stats;
+pub mod store;
+pub mod tcpros;
+pub mod upstream;
+pub mod xmlrpc;
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::path::Path;
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+use configbot_dataplane::policy::{AppOf, PolicyConfig};
+use configbot_dataplane::{
+    AdaptorSetting, DataPlane, DataPlaneError, EdgeCounters, EdgeId, Graph, GraphEvent, NodeInfo,
+    TopicInfo, TopicStats,
+};
+use tokio::sync::{Notify, broadcast};
+use tokio::task::JoinHandle;
+
+use crate::core::{Core, lock};
+pub use crate::core::{MASTER_CALLER_ID, Placement};
+use crate::state::{Effect, MasterState};
+use crate::xmlrpc::Value;
+
+/// Errors of starting the ROS 1 data plane.
+#[derive(Debug, thiserror::Error)]
+pub enum Ros1Error {
+    #[error("bad master uri {0} (want http://host:port/)")]
+    BadMasterUri(String),
+    #[error("binding {what} on {addr}")]
+    Bind {
+        what: &'static str,
+        addr: String,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("opening the ros1 database")]
+    Store(#[from] store::StoreError),
+    #[error("registering adaptor metrics")]
+    Metrics(#[from] prometheus::Error),
+}
+
+/// Configuration of [`Ros1DataPlane::start`].
+#[derive(Clone)]
+pub struct Ros1Config {
+    /// The URI nodes use as ROS_MASTER_URI; its port is where the master listens.
+    pub master_uri: String,
+    /// Address the master and adaptor servers bind to.
+    pub bind_host: String,
+    /// Host name put in adaptor URIs (must resolve for the nodes).
+    pub advertise_host: String,
+    /// Ports of the adaptor's slave XML-RPC and TCPROS servers (0 = any).
+    pub adaptor_xmlrpc_port: u16,
+    pub adaptor_tcpros_port: u16,
+    /// Period of the full graph refresh (pids, liveness).
+    pub refresh_period: Duration,
+    /// Timeout of calls to nodes.
+    pub call_timeout: Duration,
+    /// Window of topic meters.
+    pub meter_window: Duration,
+    /// Which edges get a pass-through adaptor when their subscriber
+    /// registers; `None` = only edges set through `set_adaptor`.
+    pub placement: Option<Placement>,
+}
+
+impl std::fmt::Debug for Ros1Config {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Ros1Config")
+            .field("master_uri", &self.master_uri)
+            .field("bind_host", &self.bind_host)
+            .field("refresh_period", &self.refresh_period)
+            .field("placement", &self.placement.is_some())
+            .finish_non_exhaustive()
+    }
+}
+
+impl Default for Ros1Config {
+    fn default() -> Self {
+        Self {
+            master_uri: "http://localhost:11311/".into(),
+            bind_host: "0.0.0.0".into(),
+            advertise_host: "localhost".into(),
+            adaptor_xmlrpc_port: 0,
+            adaptor_tcpros_port: 0,
+            refresh_period: Duration::from_secs(30),
+            call_timeout: Duration::from_secs(3),
+            meter_window: Duration::from_secs(10),
+            placement: None,
+        }
+    }
+}
+
+/// Placement from the app mapping: an edge gets a pass-through adaptor at
+/// subscribe time when its subscriber or a current publisher belongs to a
+/// non-core app (or it is on the include list), unless excluded. The rate
+/// rule of the policy is applied later, on measured rates, by the caller.
+///
+/// Adaptors are placed at subscribe time because rospy subscribers never
+/// drop a publisher connection on publisherUpdate: an adaptor inserted into
+/// a live rospy edge only takes over after the subscriber resubscribes.
+pub fn placement_from_apps(apps: Arc<dyn AppOf + Send + Sync>, cfg: PolicyConfig) -> Placement {
+    Arc::new(move |id: &EdgeId, pubs: &[String]| {
+        if cfg.excluded(id) {
+            return false;
+        }
+        if cfg.included(id) {
+            return true;
+        }
+        let non_core = |n: &str| apps.is_core(n) == Some(false);
+        non_core(&id.subscriber) || pubs.iter().any(|p| non_core(p))
+    })
+}
+
+/// The running ROS 1 data plane. Dropping it stops every server and task.
+#[derive(Debug)]
+pub struct Ros1DataPlane {
+    core: Arc<Core>,
+    pids: Arc<Mutex<BTreeMap<(String, String), u32>>>,
+    events: broadcast::Sender<GraphEvent>,
+    tasks: Vec<JoinHandle<()>>,
+    master_port: u16,
+}
+
+impl Drop for Ros1DataPlane {
+    fn drop(&mut self) {
+        for t in &self.tasks {
+            t.abort();
+        }
+        if let Ok(mut r) = self.core.relays.lock() {
+            r.clear();
+        }
+        if let Ok(mut m) = self.core.meters.lock() {
+            m.clear();
+        }
+    }
+}
+
+impl Ros1DataPlane {
+    /// Opens the database at `db_path`, restores and verifies the persisted
+    /// graph, and starts the master, adaptor servers and graph monitor.
+    /// Adaptor metrics go to `registry`. Must run inside a tokio runtime.
+    pub async fn start(
+        config: Ros1Config,
+        db_path: &Path,
+        registry: &prometheus::Registry,
+    ) -> Result<Self, Ros1Error> {
+        let (_, port, _) = http::parse_uri(&config.master_uri)
+            .ok_or_else(|| Ros1Error::BadMasterUri(config.master_uri.clone()))?;
+        let bind = |what, port: u16| {
+            let host = config.bind_host.clone();
+            async move {
+                http::bind(&host, port)
+                    .await
+                    .map_err(|source| Ros1Error::Bind {
+                        what,
+                        addr: format!("{host}:{port}"),
+                        source,
+                    })
+            }
+        };
+        let (master_l, master_addr) = bind("master", port).await?;
+        let (slave_l, slave_addr) = bind("adaptor xml-rpc", config.adaptor_xmlrpc_port).await?;
+        let (tcp_l, tcp_addr) = bind("adaptor tcpros", config.adaptor_tcpros_port).await?;
+        let store = store::Store::open(db_path)?;
+        let state = store.load()?;
+        let settings = store.load_adaptors()?;
+        let metrics = adaptor::AdaptorMetrics::new(registry)?;
+        let adaptor_uri = format!("http://{}:{}/", config.advertise_host, slave_addr.port());
+        let core = Arc::new(Core {
+            state: Mutex::new(MasterState::default()),
+            store: Mutex::new(store),
+            master_uri: config.master_uri.clone(),
+            adaptor_uri,
+            relays: Arc::new(Mutex::new(BTreeMap::new())),
+            settings: Mutex::new(settings),
+            placement: config
+                .placement
+                .clone()
+                .unwrap_or_else(|| Arc::new(|_: &EdgeId, _: &[String]| false)),
+            metrics,
+            meters: Mutex::new(BTreeMap::new()),
+            meter_window_s: config.meter_window.as_secs_f64(),
+            wake: Notify::new(),
+            timeout: config.call_timeout,
+        });
+        let mut tasks = vec![
+            tokio::spawn(http::serve(
+                master_l,
+                Arc::new(master::MasterHandler { core: core.clone() }),
+            )),
+            tokio::spawn(http::serve(
+                slave_l,
+                Arc::new(adaptor::SlaveHandler {
+                    master_uri: config.master_uri.clone(),
+                    host: config.advertise_host.clone(),
+                    tcpros_port: tcp_addr.port(),
+                }),
+            )),
+            tokio::spawn(adaptor::serve_tcpros(
+                tcp_l,
+                core.relays.clone(),
+                config.call_timeout,
+            )),
+        ];
+        let pids = Arc::new(Mutex::new(BTreeMap::new()));
+        restore(&core, state, &pids).await;
+        let (events, _) = broadcast::channel(1024);
+        tasks.push(tokio::spawn(monitor(
+            core.clone(),
+            pids.clone(),
+            events.clone(),
+            config.refresh_period,
+        )));
+        Ok(Self {
+            core,
+            pids,
+            events,
+            tasks,
+            master_port: master_addr.port(),
+        })
+    }
+
+    /// The master URI nodes should use.
+    pub fn master_uri(&self) -> &str {
+        &self.core.master_uri
+    }
+
+    /// The port the master actually listens on.
+    pub fn master_port(&self) -> u16 {
+        self.master_port
+    }
+
+    /// The adaptor's slave URI (what adapted subscribers are given).
+    pub fn adaptor_uri(&self) -> &str {
+        &self.core.adaptor_uri
+    }
+}
+
+/// Loads the persisted state, keeps the nodes that still answer getPid, and
+/// points adapted subscribers at the new adaptor endpoint.
+async fn restore(
+    core: &Arc<Core>,
+    state: MasterState,
+    pids: &Mutex<BTreeMap<(String, String), u32>>,
+) {
+    let nodes: Vec<(String, String)> = state
+        .nodes
+        .iter()
+        .map(|(n, a)| (n.clone(), a.clone()))
+        .collect();
+    *lock(&core.state) = state;
+    let answers = get_pids(&nodes, core.timeout).await;
+    let mut fx = Vec::new();
+    {
+        let mut st = lock(&core.state);
+        let mut p = lock(pids);
+        for ((name, api), pid) in nodes.iter().zip(answers) {
+            match pid {
+                Some(pid) => {
+                    p.insert((name.clone(), api.clone()), pid);
+                }
+                None => fx.extend(st.drop_node(name)),
+            }
+        }
+    }
+    core.persist();
+    let adapted: Vec<EdgeId> = lock(&core.settings).keys().cloned().collect();
+    {
+        let st = lock(&core.state);
+        for id in adapted {
+            if st
+                .subscribers
+                .get(&id.topic)
+                .is_some_and(|s| s.contains(&id.subscriber))
+            {
+                fx.push(Effect::PublisherUpdate {
+                    topic: id.topic,
+                    subscriber: id.subscriber,
+                });
+            }
+        }
+    }
+    core.run_effects(fx);
+}
+
+async fn get_pids(nodes: &[(String, String)], timeout: Duration) -> Vec<Option<u32>> {
+    let handles: Vec<_> = nodes
+        .iter()
+        .map(|(_, api)| {
+            let api = api.clone();
+            tokio::spawn(async move {
+                let v = http::call(&api, "getPid", &[Value::str(MASTER_CALLER_ID)], timeout)
+                    .await
+                    .ok()?;
+                let a = v.as_array()?;
+                (a.first()?.as_i64()? == 1).then_some(())?;
+                u32::try_from(a.get(2)?.as_i64()?).ok()
+            })
+        })
+        .collect();
+    let mut out = Vec::with_capacity(handles.len());
+    for h in handles {
+        out.push(h.await.ok().flatten());
+    }
+    out
+}
+
+/// Builds the graph from master state and known pids. Pure.
+pub fn build_graph(st: &MasterState, pids: &BTreeMap<(String, String), u32>) -> Graph {
+    let mut g = Graph::default();
+    for (name, uri) in &st.nodes {
+        g.nodes.insert(
+            name.clone(),
+            NodeInfo {
+                name: name.clone(),
+                uri: uri.clone(),
+                pid: pids.get(&(name.clone(), uri.clone())).copied(),
+            },
+        );
+    }
+    let topics: BTreeSet<&String> = st.publishers.keys().chain(st.subscribers.keys()).collect();
+    for t in topics {
+        g.topics.insert(
+            t.clone(),
+            TopicInfo {
+                name: t.clone(),
+                msg_type: st.type_of(t).to_string(),
+                publishers: st.publishers.get(t).cloned().unwrap_or_default(),
+                subscribers: st.subscribers.get(t).cloned().unwrap_or_default(),
+            },
+        );
+    }
+    g
+}
+
+async fn monitor(
+    core: Arc<Core>,
+    pids: Arc<Mutex<BTreeMap<(String, String), u32>>>,
+    events: broadcast::Sender<GraphEvent>,
+    period: Duration,
+) {
+    let mut last = Graph::default();
+    let mut full = true;
+    loop {
+        let nodes: Vec<(String, String)> = lock(&core.state)
+            .nodes
+            .iter()
+            .map(|(n, a)| (n.clone(), a.clone()))
+            .collect();
+        let todo: Vec<(String, String)> = {
+            let p = lock(&pids);
+            nodes
+                .iter()
+                .filter(|k| full || !p.contains_key(*k))
+                .cloned()
+                .collect()
+        };
+        let answers = get_pids(&todo, core.timeout).await;
+        {
+            let mut p = lock(&pids);
+            for (k, pid) in todo.into_iter().zip(answers) {
+                match pid {
+                    Some(pid) => {
+                        p.insert(k, pid);
+                    }
+                    None => {
+                        p.remove(&k);
+                    }
+                }
+            }
+            p.retain(|k, _| nodes.contains(k));
+        }
+        let g = build_graph(&lock(&core.state), &lock(&pids));
+        for e in last.diff(&g) {
+            let _ = events.send(e);
+        }
+        last = g;
+        full = tokio::select! {
+            _ = tokio::time::sleep(period) => true,
+            _ = core.wake.notified() => false,
+        };
+    }
+}
+
+impl DataPlane for Ros1DataPlane {
+    fn graph(&self) -> Graph {
+        build_graph(&lock(&self.core.state), &lock(&self.pids))
+    }
+
+    fn topic_stats(&self, topic: &str) -> Result<Option<TopicStats>, DataPlaneError> {
+        let known = {
+            let st = lock(&self.core.state);
+            st.publishers.contains_key(topic) || st.subscribers.contains_key(topic)
+        };
+        if !known {
+            return Err(DataPlaneError::UnknownTopic(topic.into()));
+        }
+        Ok(self.core.meter(topic).stats())
+    }
+
+    fn edge_stats(&self, edge: &EdgeId) -> Option<TopicStats> {
+        let r = lock(&self.core.relays).get(edge).cloned()?;
+        r.edge.consumer_stats()
+    }
+
+    fn set_adaptor(&self, edge: &EdgeId, setting: AdaptorSetting) -> Result<(), DataPlaneError> {
+        if let Some(r) = setting.rate_hz
+            && !(r.is_finite() && r > 0.0)
+        {
+            return Err(DataPlaneError::InvalidRate(r));
+        }
+        self.core.set_adaptor(edge, setting);
+        Ok(())
+    }
+
+    fn remove_adaptor(&self, edge: &EdgeId) -> Result<(), DataPlaneError> {
+        if self.core.remove_adaptor(edge) {
+            Ok(())
+        } else {
+            Err(DataPlaneError::UnknownEdge {
+                topic: edge.topic.clone(),
+                subscriber: edge.subscriber.clone(),
+            })
+        }
+    }
+
+    fn adaptors(&self) -> BTreeMap<EdgeId, AdaptorSetting> {
+        lock(&self.core.settings).clone()
+    }
+
+    fn adaptor_counters(&self) -> BTreeMap<EdgeId, EdgeCounters> {
+        let mut out: BTreeMap<EdgeId, EdgeCounters> = lock(&self.core.settings)
+            .keys()
+            .map(|k| (k.clone(), EdgeCounters::default()))
+            .collect();
+        for (k, r) in lock(&self.core.relays).iter() {
+            out.insert(k.clone(), r.edge.counters());
+        }
+        out
+    }
+
+    fn subscribe_events(&self) -> broadcast::Receiver<GraphEvent> {
+        self.events.subscribe()
+    }
+
+    fn wake(&self) {
+        self.core.wake.notify_one();
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn placement_follows_apps_and_lists() {
+        use configbot_dataplane::policy::EdgeSelector;
+        let apps: Arc<dyn AppOf + Send + Sync> = Arc::new(|n: &str| match n {
+            "/det" => Some(false),
+            "/nav" | "/cam" => Some(true),
+            _ => None,
+        });
+        let e = |t: &str, s: &str| EdgeId {
+            topic: t.into(),
+            subscriber: s.into(),
+        };
+        let cfg = PolicyConfig {
+            include: vec![EdgeSelector::edge(&e("/odom", "/nav"))],
+            exclude: vec![
+                EdgeSelector::edge(&e("/img", "/det")),
+                EdgeSelector::topic("/rosout"),
+            ],
+            ..PolicyConfig::default()
+        };
+        let place = placement_from_apps(apps, cfg);
+        assert!(place(&e("/camera", "/det"), &["/cam".into()]));
+        assert!(
+            place(&e("/camera", "/nav"), &["/det".into()]),
+            "non-core publisher"
+        );
+        assert!(!place(&e("/camera", "/nav"), &["/cam".into()]));
+        assert!(place(&e("/odom", "/nav"), &[]), "include list");
+        assert!(!place(&e("/img", "/det"), &["/cam".into()]), "exclude list");
+        assert!(!place(&e("/rosout", "/det"), &[]), "excluded topic");
+    }
+
+    #[test]
+    fn graph_from_state_has_types_edges_and_pids() {
+        let mut st = MasterState::default();
+        st.register_publisher("/cam", "http://c/", "/img", "sensor_msgs/Image");
+        st.register_subscriber("/det", "http://d/", "/img", "sensor_msgs/Image");
+        st.register_subscriber("/det", "http://d/", "/lonely", "std_msgs/String");
+        let mut pids = BTreeMap::new();
+        pids.insert(("/cam".to_string(), "http://c/".to_string()), 42);
+        pids.insert(("/det".to_string(), "http://old/".to_string()), 7);
+        let g = build_graph(&st, &pids);
+        assert_eq!(g.nodes["/cam"].pid, Some(42));
+        assert_eq!(
+            g.nodes["/det"].pid, None,
+            "pid of an older incarnation is not used"
+        );
+        assert_eq!(g.topics["/img"].msg_type, "sensor_msgs/Image");
+        assert_eq!(g.edges().len(), 1);
+        assert!(g.topics["/lonely"].publishers.is_empty());
+    }
+}
