@@ -127,7 +127,10 @@ mod tests {
         ];
         for (z, want) in table {
             let got = norm_cdf(z);
-            assert!(((got - want) / want).abs() < 1e-12, "Phi({z}) = {got}, want {want}");
+            assert!(
+                ((got - want) / want).abs() < 1e-12,
+                "Phi({z}) = {got}, want {want}"
+            );
         }
         assert!((norm_pdf(0.0) - 0.398_942_280_401_432_7).abs() < 1e-15);
         assert!((norm_pdf(1.0) - 0.241_970_724_519_143_37).abs() < 1e-15);
@@ -137,7 +140,9 @@ mod tests {
     #[test]
     fn expected_improvement_by_hand() {
         // mean = best: EI = sd * phi(0) = 2 * 0.39894 = 0.79788
-        assert!((expected_improvement(1.0, 2.0, 1.0) - 2.0 * 0.398_942_280_401_432_7).abs() < 1e-12);
+        assert!(
+            (expected_improvement(1.0, 2.0, 1.0) - 2.0 * 0.398_942_280_401_432_7).abs() < 1e-12
+        );
         // z = 1: EI = sd (Phi(1) + phi(1)) = 0.5 * (0.841345 + 0.241971) = 0.541658
         let want = 0.5 * (0.841_344_746_068_542_9 + 0.241_970_724_519_143_37);
         assert!((expected_improvement(1.5, 0.5, 1.0) - want).abs() < 1e-12);
@@ -168,7 +173,10 @@ mod tests {
         for z in [-3.0, -1.0, 0.0, 2.0] {
             assert!((log_norm_cdf(z) - norm_cdf(z).ln()).abs() < 1e-12);
             let (m, s) = (z * 2.0, 2.0);
-            assert!((log_expected_improvement(m, s, 0.0) - expected_improvement(m, s, 0.0).ln()).abs() < 1e-9);
+            assert!(
+                (log_expected_improvement(m, s, 0.0) - expected_improvement(m, s, 0.0).ln()).abs()
+                    < 1e-9
+            );
         }
         assert!(log_norm_cdf(-50.0).is_finite() && log_norm_cdf(-50.0) < log_norm_cdf(-40.0));
         let far = log_expected_improvement(-100.0, 1.0, 0.0);

@@ -130,7 +130,9 @@ fn all_direction_numbers(dim: usize) -> Vec<[u32; BITS]> {
         }
         if is_primitive(s, a) {
             // Odd m_j < 2^j, as the construction requires.
-            let m: Vec<u32> = (0..s).map(|j| 2 * ((rng.next_u64() as u32) % (1u32 << j)) + 1).collect();
+            let m: Vec<u32> = (0..s)
+                .map(|j| 2 * ((rng.next_u64() as u32) % (1u32 << j)) + 1)
+                .collect();
             out.push(direction_numbers(s, a, &m));
         }
         a += 1;
@@ -149,13 +151,19 @@ pub struct Sobol {
 impl Sobol {
     /// Unscrambled sequence (point 0 is the origin).
     pub fn new(dim: usize) -> Self {
-        Self { shift: vec![0; dim], dirs: all_direction_numbers(dim) }
+        Self {
+            shift: vec![0; dim],
+            dirs: all_direction_numbers(dim),
+        }
     }
 
     /// Digitally shifted by random bits from `rng`.
     pub fn scrambled(dim: usize, rng: &mut Rng) -> Self {
         let shift = (0..dim).map(|_| (rng.next_u64() >> 32) as u32).collect();
-        Self { shift, dirs: all_direction_numbers(dim) }
+        Self {
+            shift,
+            dirs: all_direction_numbers(dim),
+        }
     }
 
     pub fn dim(&self) -> usize {
@@ -200,7 +208,11 @@ mod tests {
             assert!(is_primitive(s, a), "degree {s} a {a}");
             assert_eq!(m.len(), s as usize);
             for (i, &mi) in m.iter().enumerate() {
-                assert!(mi % 2 == 1 && mi < (1 << (i + 1)), "m_{} = {mi} for degree {s} a {a}", i + 1);
+                assert!(
+                    mi % 2 == 1 && mi < (1 << (i + 1)),
+                    "m_{} = {mi} for degree {s} a {a}",
+                    i + 1
+                );
             }
         }
         // x^2 + 1 = (x + 1)^2 is not primitive, x^4 + x^2 + 1 neither (reducible).
@@ -228,7 +240,13 @@ mod tests {
     #[test]
     fn first_points_match_the_reference_sequence() {
         // Unscrambled Sobol, dimensions 1-3 (Joe & Kuo's reference output).
-        let want = [[0.5, 0.5, 0.5], [0.75, 0.25, 0.25], [0.25, 0.75, 0.75], [0.375, 0.375, 0.625], [0.875, 0.875, 0.125]];
+        let want = [
+            [0.5, 0.5, 0.5],
+            [0.75, 0.25, 0.25],
+            [0.25, 0.75, 0.75],
+            [0.375, 0.375, 0.625],
+            [0.875, 0.875, 0.125],
+        ];
         let mut s = Sobol::new(3);
         for (i, w) in want.iter().enumerate() {
             let p = s.point(i as u64 + 1);
@@ -256,6 +274,9 @@ mod tests {
                 with_empty += usize::from(cells.contains(&0));
             }
         }
-        assert!(with_empty <= 3, "{with_empty} of 45 pairs leave a cell empty");
+        assert!(
+            with_empty <= 3,
+            "{with_empty} of 45 pairs leave a cell empty"
+        );
     }
 }

@@ -24,7 +24,11 @@ pub struct Hyper {
 impl Hyper {
     /// The prior's centre for `dim` inputs.
     pub fn default_for(dim: usize) -> Self {
-        Self { log_ls: vec![prior_ls_mean(dim); dim], log_sf2: 0.0, log_sn2: PRIOR_SN2_MEAN }
+        Self {
+            log_ls: vec![prior_ls_mean(dim); dim],
+            log_sf2: 0.0,
+            log_sn2: PRIOR_SN2_MEAN,
+        }
     }
 
     fn to_vec(&self) -> Vec<f64> {
@@ -36,7 +40,11 @@ impl Hyper {
 
     fn from_slice(v: &[f64]) -> Self {
         let d = v.len() - 2;
-        Self { log_ls: v[..d].to_vec(), log_sf2: v[d], log_sn2: v[d + 1] }
+        Self {
+            log_ls: v[..d].to_vec(),
+            log_sf2: v[d],
+            log_sn2: v[d + 1],
+        }
     }
 }
 
@@ -66,7 +74,11 @@ pub struct FitOptions {
 
 impl Default for FitOptions {
     fn default() -> Self {
-        Self { random_starts: 2, max_iter: 40, min_scale: 1e-9 }
+        Self {
+            random_starts: 2,
+            max_iter: 40,
+            min_scale: 1e-9,
+        }
     }
 }
 
@@ -172,7 +184,12 @@ fn neg_log_posterior(h: &[f64], pairs: &Pairs, z: &DVector<f64>) -> Option<(f64,
     }
     let chol = k.clone().cholesky()?;
     let alpha = chol.solve(z);
-    let logdet: f64 = chol.l_dirty().diagonal().iter().map(|v| v.ln()).sum::<f64>();
+    let logdet: f64 = chol
+        .l_dirty()
+        .diagonal()
+        .iter()
+        .map(|v| v.ln())
+        .sum::<f64>();
     let nll = 0.5 * z.dot(&alpha) + logdet + 0.5 * n as f64 * (2.0 * std::f64::consts::PI).ln();
     let kinv = chol.inverse();
     // W = alpha alpha^T - K^-1; d lml / d theta = 0.5 tr(W dK)
@@ -216,9 +233,12 @@ fn bounds(dim: usize) -> (Vec<f64>, Vec<f64>) {
     (lo, hi)
 }
 
+/// A function value with its gradient, `None` where it cannot be evaluated.
+type ValueGrad<'a> = &'a dyn Fn(&[f64]) -> Option<(f64, Vec<f64>)>;
+
 /// Projected L-BFGS with Armijo backtracking; minimises `f` inside the box.
 fn lbfgs(
-    f: &dyn Fn(&[f64]) -> Option<(f64, Vec<f64>)>,
+    f: ValueGrad<'_>,
     x0: Vec<f64>,
     lo: &[f64],
     hi: &[f64],
@@ -278,7 +298,9 @@ fn lbfgs(
             }
             t *= 0.5;
         }
-        let Some((xn, fn_, gn, s)) = accepted else { break };
+        let Some((xn, fn_, gn, s)) = accepted else {
+            break;
+        };
         let y: Vec<f64> = gn.iter().zip(&g).map(|(a, b)| a - b).collect();
         let sy = dot(&s, &y);
         if sy > 1e-12 {
@@ -395,7 +417,12 @@ impl Gp {
         let mut ks = DMatrix::<f64>::zeros(n, m);
         for (j, u) in us.iter().enumerate() {
             for (i, xi) in self.x.iter().enumerate() {
-                let r2: f64 = xi.iter().zip(u).zip(&self.inv_ls2).map(|((a, b), w)| (a - b) * (a - b) * w).sum();
+                let r2: f64 = xi
+                    .iter()
+                    .zip(u)
+                    .zip(&self.inv_ls2)
+                    .map(|((a, b), w)| (a - b) * (a - b) * w)
+                    .sum();
                 ks[(i, j)] = self.sf2 * matern52(r2.sqrt());
             }
         }
@@ -405,7 +432,10 @@ impl Gp {
             .map(|j| {
                 let vv: f64 = v.column(j).iter().map(|a| a * a).sum();
                 let var = (self.sf2 - vv).max(1e-12 * self.sf2);
-                (self.y_mean + self.y_scale * means[j], self.y_scale * var.sqrt())
+                (
+                    self.y_mean + self.y_scale * means[j],
+                    self.y_scale * var.sqrt(),
+                )
             })
             .collect()
     }
@@ -422,7 +452,9 @@ mod tests {
     #[test]
     fn fits_a_known_function_and_variance_shrinks_at_data() {
         let mut rng = Rng::seed_from_u64(11);
-        let x: Vec<Vec<f64>> = (0..40).map(|_| vec![rng.uniform(), rng.uniform()]).collect();
+        let x: Vec<Vec<f64>> = (0..40)
+            .map(|_| vec![rng.uniform(), rng.uniform()])
+            .collect();
         let y: Vec<f64> = x.iter().map(|u| truth(u)).collect();
         let gp = Gp::fit(&x, &y, &FitOptions::default(), None, &mut rng).unwrap();
         let mut max_err: f64 = 0.0;
@@ -433,7 +465,10 @@ mod tests {
             max_err = max_err.max((m - truth(&u)).abs());
             far_sd += s / 200.0;
         }
-        assert!(max_err < 0.15, "max error {max_err} on a function of range 3");
+        assert!(
+            max_err < 0.15,
+            "max error {max_err} on a function of range 3"
+        );
         for (u, yv) in x.iter().zip(&y).take(10) {
             let (m, s) = gp.predict(u);
             assert!((m - yv).abs() < 0.02, "mean at data {m} vs {yv}");
@@ -448,11 +483,17 @@ mod tests {
     fn noise_is_learned_from_noisy_data() {
         let mut rng = Rng::seed_from_u64(2);
         let x: Vec<Vec<f64>> = (0..60).map(|_| vec![rng.uniform()]).collect();
-        let y: Vec<f64> = x.iter().map(|u| (5.0 * u[0]).sin() + 0.2 * rng.normal()).collect();
+        let y: Vec<f64> = x
+            .iter()
+            .map(|u| (5.0 * u[0]).sin() + 0.2 * rng.normal())
+            .collect();
         let gp = Gp::fit(&x, &y, &FitOptions::default(), None, &mut rng).unwrap();
         // Standardised y has variance ~ 0.5 + 0.04; noise share should be near 0.04/0.54.
         let noise_var_units = gp.hyper().log_sn2.exp() * gp.y_scale * gp.y_scale;
-        assert!((0.01..0.09).contains(&noise_var_units), "noise variance {noise_var_units}, true 0.04");
+        assert!(
+            (0.01..0.09).contains(&noise_var_units),
+            "noise variance {noise_var_units}, true 0.04"
+        );
         let (m, _) = gp.predict(&[0.3]);
         assert!((m - (1.5f64).sin()).abs() < 0.2);
     }
@@ -460,8 +501,13 @@ mod tests {
     #[test]
     fn gradient_matches_finite_differences() {
         let mut rng = Rng::seed_from_u64(4);
-        let x: Vec<Vec<f64>> = (0..12).map(|_| vec![rng.uniform(), rng.uniform(), rng.uniform()]).collect();
-        let y: Vec<f64> = x.iter().map(|u| u[0] * 3.0 + (u[1] * 4.0).sin() + rng.normal() * 0.1).collect();
+        let x: Vec<Vec<f64>> = (0..12)
+            .map(|_| vec![rng.uniform(), rng.uniform(), rng.uniform()])
+            .collect();
+        let y: Vec<f64> = x
+            .iter()
+            .map(|u| u[0] * 3.0 + (u[1] * 4.0).sin() + rng.normal() * 0.1)
+            .collect();
         let (_, _, z) = standardise(&y, 0.0);
         let z = DVector::from_vec(z);
         let pairs = Pairs::new(&x);
@@ -472,8 +518,14 @@ mod tests {
             let mut hm = h.clone();
             hp[i] += 1e-5;
             hm[i] -= 1e-5;
-            let fd = (neg_log_posterior(&hp, &pairs, &z).unwrap().0 - neg_log_posterior(&hm, &pairs, &z).unwrap().0) / 2e-5;
-            assert!((fd - g[i]).abs() < 1e-4 * (1.0 + fd.abs()), "param {i}: analytic {} fd {fd}", g[i]);
+            let fd = (neg_log_posterior(&hp, &pairs, &z).unwrap().0
+                - neg_log_posterior(&hm, &pairs, &z).unwrap().0)
+                / 2e-5;
+            assert!(
+                (fd - g[i]).abs() < 1e-4 * (1.0 + fd.abs()),
+                "param {i}: analytic {} fd {fd}",
+                g[i]
+            );
         }
     }
 }

@@ -111,7 +111,10 @@ impl Models {
             hypers[j + 1] = Some(gp.hyper().clone());
             constraints.push(gp);
         }
-        Ok(Self { objective, constraints })
+        Ok(Self {
+            objective,
+            constraints,
+        })
     }
 
     /// Scores candidates (unit-cube points).
@@ -126,7 +129,11 @@ impl Models {
             (Some(gp), Some(_)) => Some(gp.predict_many(us)),
             _ => None,
         };
-        let cons: Vec<Vec<(f64, f64)>> = self.constraints.iter().map(|gp| gp.predict_many(us)).collect();
+        let cons: Vec<Vec<(f64, f64)>> = self
+            .constraints
+            .iter()
+            .map(|gp| gp.predict_many(us))
+            .collect();
         (0..us.len())
             .map(|i| {
                 let mut log_pof = 0.0;
@@ -140,7 +147,9 @@ impl Models {
                     log_pof += if sd > 1e-12 {
                         log_norm_cdf(margin / sd)
                     } else {
-                        probability_of_feasibility(mean, sd, c.threshold, c.sense).max(f64::MIN_POSITIVE).ln()
+                        probability_of_feasibility(mean, sd, c.threshold, c.sense)
+                            .max(f64::MIN_POSITIVE)
+                            .ln()
                     };
                     if let Some(s) = safety {
                         let bound = match c.sense {
@@ -158,7 +167,12 @@ impl Models {
                     }
                     _ => (log_pof, None),
                 };
-                Score { log_acq, pof: log_pof.exp(), cei, safe }
+                Score {
+                    log_acq,
+                    pof: log_pof.exp(),
+                    cei,
+                    safe,
+                }
             })
             .collect()
     }
@@ -175,7 +189,10 @@ mod tests {
 
     #[test]
     fn floors_for_both_senses() {
-        let s = SafetyFloor { fraction_of_target: 0.8, beta: 2.0 };
+        let s = SafetyFloor {
+            fraction_of_target: 0.8,
+            beta: 2.0,
+        };
         let rate = Constraint::at_least("cmd_vel_hz", 35.0);
         assert!((s.floor(&rate) - 28.0).abs() < 1e-12);
         assert!(s.holds(&rate, 29.0) && !s.holds(&rate, 27.0));

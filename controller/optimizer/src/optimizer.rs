@@ -8,9 +8,11 @@
 //!   included, except the current config itself) must have each core
 //!   constraint's confidence bound on the safe side of the floor, and lies in a
 //!   trust region around the current config whose half-width grows by
-//!   `trust_growth` with each trial that measured safe. Constraint outputs are
-//!   standardised with at least `constraint_min_scale × |target|`, so a few
-//!   similar values do not make the model overconfident.
+//!   `trust_growth` with each trial that measured safe, and within `safe_reach`
+//!   of a trial that measured safe. Constraint outputs are standardised with at
+//!   least `constraint_min_scale × |target|` (in safe mode at least the floor's
+//!   slack, `(1 - fraction) × |target|`), so a few similar values do not make
+//!   the model overconfident.
 //! - **Warm start** ([`Optimizer::with_prior_observations`]): trials from a
 //!   similar context join the models' data (not the budget, and never the
 //!   reported best, which must be measured here); the best feasible prior
@@ -70,6 +72,9 @@ pub struct Settings {
     pub trust_initial: f64,
     /// Safe mode: trust-region growth per safe trial.
     pub trust_growth: f64,
+    /// Safe mode: proposals also stay within this L∞ distance (unit cube) of a
+    /// trial that measured safe, so the models extrapolate only a short way.
+    pub safe_reach: f64,
 }
 
 impl Default for Settings {
@@ -88,7 +93,8 @@ impl Default for Settings {
             full_refit_every: 5,
             constraint_min_scale: 0.05,
             trust_initial: 0.1,
-            trust_growth: 1.3,
+            trust_growth: 1.1,
+            safe_reach: 0.15,
         }
     }
 }
@@ -182,7 +188,9 @@ impl Optimizer {
             problem.check(o)?;
         }
         if settings.initial_design_size == 0 || settings.candidates == 0 {
-            return Err(Error::Settings("initial_design_size and candidates must be > 0".into()));
+            return Err(Error::Settings(
+                "initial_design_size and candidates must be > 0".into(),
+            ));
         }
         if let Some(s) = &settings.safety
             && !(s.fraction_of_target > 0.0 && s.fraction_of_target <= 1.0 && s.beta >= 0.0)
@@ -199,20 +207,30 @@ impl Optimizer {
         let best_prior = prior
             .iter()
             .filter(|o| problem.is_feasible(o))
-            .max_by(|a, b| problem.scalarize(&a.objectives).total_cmp(&problem.scalarize(&b.objectives)));
+            .max_by(|a, b| {
+                problem
+                    .scalarize(&a.objectives)
+                    .total_cmp(&problem.scalarize(&b.objectives))
+            });
         if let Some(o) = best_prior {
             let u = problem.space.to_unit(&o.x);
             if u != current_u {
                 design.push(u);
             }
         }
-        let fill = settings.initial_design_size.saturating_sub(design.len() + prior.len() / 2);
+        let fill = settings
+            .initial_design_size
+            .saturating_sub(design.len() + prior.len() / 2);
         let mut sobol = Sobol::scrambled(dim, &mut rng);
         let half = settings.trust_initial;
         for p in sobol.points(0, fill) {
             let u: Vec<f64> = match settings.safety {
                 // Safe mode: the space-filling set covers the initial trust region.
-                Some(_) => p.iter().zip(&current_u).map(|(p, c)| (c + half * (2.0 * p - 1.0)).clamp(0.0, 1.0)).collect(),
+                Some(_) => p
+                    .iter()
+                    .zip(&current_u)
+                    .map(|(p, c)| (c + half * (2.0 * p - 1.0)).clamp(0.0, 1.0))
+                    .collect(),
                 None => p,
             };
             design.push(problem.space.snap_unit(&u));
@@ -291,11 +309,47 @@ impl Optimizer {
     }
 
     fn safe_trials(&self) -> usize {
-        let Some(s) = &self.settings.safety else { return 0 };
+        let Some(s) = &self.settings.safety else {
+            return 0;
+        };
         self.observations
             .iter()
-            .filter(|o| self.problem.constraints.iter().zip(&o.constraints).all(|(c, &v)| s.holds(c, v)))
+            .filter(|o| {
+                self.problem
+                    .constraints
+                    .iter()
+                    .zip(&o.constraints)
+                    .all(|(c, &v)| s.holds(c, v))
+            })
             .count()
+    }
+
+    /// Unit-cube points of trials that measured on the safe side of every floor.
+    fn safe_points(&self) -> Vec<Vec<f64>> {
+        let Some(s) = &self.settings.safety else {
+            return Vec::new();
+        };
+        self.observations
+            .iter()
+            .filter(|o| {
+                self.problem
+                    .constraints
+                    .iter()
+                    .zip(&o.constraints)
+                    .all(|(c, &v)| s.holds(c, v))
+            })
+            .map(|o| self.problem.space.to_unit(&o.x))
+            .collect()
+    }
+
+    /// Safe mode: is `u` within reach of a safely measured trial?
+    fn in_reach(&self, u: &[f64], safe_points: &[Vec<f64>]) -> bool {
+        self.settings.safety.is_none()
+            || safe_points.iter().any(|p| {
+                p.iter()
+                    .zip(u)
+                    .all(|(a, b)| (a - b).abs() <= self.settings.safe_reach + 1e-12)
+            })
     }
 
     /// Half-width of the region proposals may come from (1 = whole cube).
@@ -311,14 +365,30 @@ impl Optimizer {
 
     fn fit_models(&mut self) -> Result<Models> {
         let data: Vec<&Observation> = self.prior.iter().chain(&self.observations).collect();
-        let u: Vec<Vec<f64>> = data.iter().map(|o| self.problem.space.to_unit(&o.x)).collect();
+        let u: Vec<Vec<f64>> = data
+            .iter()
+            .map(|o| self.problem.space.to_unit(&o.x))
+            .collect();
         let n = self.observations.len();
         let plan = FitPlan {
             fit: &self.settings.fit,
-            full: data.len() < 20 || n % self.settings.full_refit_every.max(1) == 0,
-            constraint_min_scale: self.settings.constraint_min_scale,
+            full: data.len() < 20 || n.is_multiple_of(self.settings.full_refit_every.max(1)),
+            constraint_min_scale: match &self.settings.safety {
+                Some(f) => self
+                    .settings
+                    .constraint_min_scale
+                    .max(1.0 - f.fraction_of_target),
+                None => self.settings.constraint_min_scale,
+            },
         };
-        Models::fit(&self.problem, &u, &data, &mut self.hypers, &plan, &mut self.rng)
+        Models::fit(
+            &self.problem,
+            &u,
+            &data,
+            &mut self.hypers,
+            &plan,
+            &mut self.rng,
+        )
     }
 
     fn measured(&self, u: &[f64]) -> bool {
@@ -339,10 +409,11 @@ impl Optimizer {
             return Ok(Proposal::Stop(StopReason::Budget));
         }
         // The current config first: it is what runs today, so it is safe by definition.
-        if self.observations.is_empty() && self.prior.is_empty() {
-            if let Some(u) = self.design.pop() {
-                return Ok(Proposal::Try(space.from_unit(&u)));
-            }
+        if self.observations.is_empty()
+            && self.prior.is_empty()
+            && let Some(u) = self.design.pop()
+        {
+            return Ok(Proposal::Try(space.from_unit(&u)));
         }
         let models = if self.observations.is_empty() && self.prior.is_empty() {
             None
@@ -355,7 +426,10 @@ impl Optimizer {
                 continue;
             }
             let safe = match (&self.settings.safety, &models) {
-                (Some(s), Some(m)) => m.score(&self.problem, std::slice::from_ref(&u), None, Some(s))[0].safe,
+                (Some(s), Some(m)) => {
+                    m.score(&self.problem, std::slice::from_ref(&u), None, Some(s))[0].safe
+                        && self.in_reach(&u, &self.safe_points())
+                }
                 _ => true,
             };
             if safe {
@@ -377,10 +451,19 @@ impl Optimizer {
             && let Some(t) = self.settings.unsat_when_pof_below
             && p_any < t
         {
-            return Ok(Proposal::Stop(StopReason::LikelyInfeasible { p_any_feasible: p_any }));
+            return Ok(Proposal::Stop(StopReason::LikelyInfeasible {
+                p_any_feasible: p_any,
+            }));
         }
-        let mut order: Vec<usize> = (0..cands.len()).filter(|&i| scores[i].safe && !self.measured(&cands[i])).collect();
-        order.sort_by(|&a, &b| scores[b].log_acq.total_cmp(&scores[a].log_acq).then(a.cmp(&b)));
+        let mut order: Vec<usize> = (0..cands.len())
+            .filter(|&i| scores[i].safe && !self.measured(&cands[i]))
+            .collect();
+        order.sort_by(|&a, &b| {
+            scores[b]
+                .log_acq
+                .total_cmp(&scores[a].log_acq)
+                .then(a.cmp(&b))
+        });
         if order.is_empty() {
             return Ok(Proposal::Stop(StopReason::NoSafeCandidate));
         }
@@ -395,7 +478,9 @@ impl Optimizer {
             && n >= self.settings.initial_design_size
             && cei < t
         {
-            return Ok(Proposal::Stop(StopReason::ExpectedImprovementBelow { max_cei: cei }));
+            return Ok(Proposal::Stop(StopReason::ExpectedImprovementBelow {
+                max_cei: cei,
+            }));
         }
         Ok(Proposal::Try(space.from_unit(&best.0)))
     }
@@ -408,20 +493,42 @@ impl Optimizer {
         let lo: Vec<f64> = centre.iter().map(|c| (c - half).max(0.0)).collect();
         let hi: Vec<f64> = centre.iter().map(|c| (c + half).min(1.0)).collect();
         let mut out = Vec::with_capacity(self.settings.candidates + 200);
+        let safe_points = self.safe_points();
         for _ in 0..self.settings.candidates {
-            let u: Vec<f64> = (0..dim).map(|k| self.rng.range(lo[k], hi[k])).collect();
+            let u: Vec<f64> = if self.settings.safety.is_some() && !safe_points.is_empty() {
+                // Safe mode: uniform in the reach box of a random safe trial, inside the trust region.
+                let a = &safe_points[(self.rng.next_u64() % safe_points.len() as u64) as usize];
+                let r = self.settings.safe_reach;
+                (0..dim)
+                    .map(|k| {
+                        self.rng
+                            .range((a[k] - r).max(lo[k]), (a[k] + r).min(hi[k]).max(lo[k]))
+                    })
+                    .collect()
+            } else {
+                (0..dim).map(|k| self.rng.range(lo[k], hi[k])).collect()
+            };
             out.push(self.problem.space.snap_unit(&u));
         }
         // Local candidates around the best few trials (by objective if feasible, else by violation).
-        let mut ranked: Vec<&Observation> = self.observations.iter().filter(|o| !o.censored).collect();
+        let mut ranked: Vec<&Observation> =
+            self.observations.iter().filter(|o| !o.censored).collect();
         ranked.sort_by(|a, b| {
             let key = |o: &Observation| {
                 let v = self.problem.violation(&o.constraints);
-                if v == 0.0 && incumbent.is_some() { -self.problem.scalarize(&o.objectives) } else { 1e9 + v }
+                if v == 0.0 && incumbent.is_some() {
+                    -self.problem.scalarize(&o.objectives)
+                } else {
+                    1e9 + v
+                }
             };
             key(a).total_cmp(&key(b))
         });
-        let anchors: Vec<Vec<f64>> = ranked.iter().take(4).map(|o| self.problem.space.to_unit(&o.x)).collect();
+        let anchors: Vec<Vec<f64>> = ranked
+            .iter()
+            .take(4)
+            .map(|o| self.problem.space.to_unit(&o.x))
+            .collect();
         for a in &anchors {
             for j in 0..50 {
                 let sigma = if j % 2 == 0 { 0.02 } else { 0.1 } * half.max(0.1);
@@ -433,17 +540,25 @@ impl Optimizer {
                 out.push(self.problem.space.snap_unit(&u));
             }
         }
+        out.retain(|u| self.in_reach(u, &safe_points));
         out
     }
 
     /// Stochastic hill climbing on the acquisition from `start`.
-    fn refine(&mut self, models: &Models, start: Vec<f64>, score: Score, incumbent: Option<f64>) -> (Vec<f64>, Score) {
+    fn refine(
+        &mut self,
+        models: &Models,
+        start: Vec<f64>,
+        score: Score,
+        incumbent: Option<f64>,
+    ) -> (Vec<f64>, Score) {
         let half = self.trust_half_width();
         let lo: Vec<f64> = self.current.iter().map(|c| (c - half).max(0.0)).collect();
         let hi: Vec<f64> = self.current.iter().map(|c| (c + half).min(1.0)).collect();
         let (mut x, mut s) = (start, score);
         let mut step = 0.05 * half.max(0.1);
         let safety = self.settings.safety.clone();
+        let safe_points = self.safe_points();
         for _ in 0..self.settings.refine_steps {
             let batch: Vec<Vec<f64>> = (0..4)
                 .map(|_| {
@@ -458,7 +573,11 @@ impl Optimizer {
             let scores = models.score(&self.problem, &batch, incumbent, safety.as_ref());
             let mut improved = false;
             for (u, sc) in batch.into_iter().zip(scores) {
-                if sc.safe && sc.log_acq > s.log_acq && !self.measured(&u) {
+                if sc.safe
+                    && sc.log_acq > s.log_acq
+                    && !self.measured(&u)
+                    && self.in_reach(&u, &safe_points)
+                {
                     x = u;
                     s = sc;
                     improved = true;
@@ -473,11 +592,18 @@ impl Optimizer {
     pub fn outcome(&self) -> Outcome {
         let best = self.incumbent().map(|(i, value)| {
             let o = &self.observations[i];
-            Best { x: o.x.clone(), observation: o.clone(), value }
+            Best {
+                x: o.x.clone(),
+                observation: o.clone(),
+                value,
+            }
         });
         match (&self.stopped, best) {
             (None, best) => Outcome::InProgress { best },
-            (Some(r), Some(best)) => Outcome::Best { best, reason: r.clone() },
+            (Some(r), Some(best)) => Outcome::Best {
+                best,
+                reason: r.clone(),
+            },
             (Some(r), None) => {
                 let nearest = self
                     .observations

@@ -38,12 +38,22 @@ pub struct Objective {
 impl Objective {
     /// A rate-like objective capped at its target.
     pub fn capped(name: &str, cap: f64) -> Self {
-        Self { name: name.to_owned(), goal: Goal::Maximize, cap: Some(cap), weight: 1.0 }
+        Self {
+            name: name.to_owned(),
+            goal: Goal::Maximize,
+            cap: Some(cap),
+            weight: 1.0,
+        }
     }
 
     /// An uncapped objective (used by the standard test problems).
     pub fn raw(name: &str, goal: Goal) -> Self {
-        Self { name: name.to_owned(), goal, cap: None, weight: 1.0 }
+        Self {
+            name: name.to_owned(),
+            goal,
+            cap: None,
+            weight: 1.0,
+        }
     }
 
     /// This objective's normalised value `u`.
@@ -77,16 +87,28 @@ pub struct Constraint {
 
 impl Constraint {
     pub fn at_least(name: &str, threshold: f64) -> Self {
-        Self { name: name.to_owned(), threshold, sense: Sense::AtLeast }
+        Self {
+            name: name.to_owned(),
+            threshold,
+            sense: Sense::AtLeast,
+        }
     }
 
     pub fn at_most(name: &str, threshold: f64) -> Self {
-        Self { name: name.to_owned(), threshold, sense: Sense::AtMost }
+        Self {
+            name: name.to_owned(),
+            threshold,
+            sense: Sense::AtMost,
+        }
     }
 
     /// Scale used to normalise margins: `|threshold|`, or 1 for a zero threshold.
     pub fn scale(&self) -> f64 {
-        if self.threshold.abs() > 0.0 { self.threshold.abs() } else { 1.0 }
+        if self.threshold.abs() > 0.0 {
+            self.threshold.abs()
+        } else {
+            1.0
+        }
     }
 
     /// Signed normalised margin: `>= 0` is feasible, `-0.1` is 10 % short.
@@ -147,27 +169,47 @@ impl Problem {
             if let Some(cap) = o.cap
                 && !(cap.is_finite() && cap > 0.0)
             {
-                return Err(Error::Problem(format!("objective {:?}: cap {cap} must be finite and > 0", o.name)));
+                return Err(Error::Problem(format!(
+                    "objective {:?}: cap {cap} must be finite and > 0",
+                    o.name
+                )));
             }
             if !(o.weight.is_finite() && o.weight >= 0.0) {
-                return Err(Error::Problem(format!("objective {:?}: weight {} must be >= 0", o.name, o.weight)));
+                return Err(Error::Problem(format!(
+                    "objective {:?}: weight {} must be >= 0",
+                    o.name, o.weight
+                )));
             }
         }
         if scalarization == Scalarization::Weighted
             && !objectives.is_empty()
             && objectives.iter().map(|o| o.weight).sum::<f64>() <= 0.0
         {
-            return Err(Error::Problem("weighted scalarisation needs a positive weight".into()));
+            return Err(Error::Problem(
+                "weighted scalarisation needs a positive weight".into(),
+            ));
         }
         if let Some(c) = constraints.iter().find(|c| !c.threshold.is_finite()) {
-            return Err(Error::Problem(format!("constraint {:?}: threshold must be finite", c.name)));
+            return Err(Error::Problem(format!(
+                "constraint {:?}: threshold must be finite",
+                c.name
+            )));
         }
-        Ok(Self { space, objectives, constraints, scalarization })
+        Ok(Self {
+            space,
+            objectives,
+            constraints,
+            scalarization,
+        })
     }
 
     /// The scalar to maximise (see the module docs). Zero objectives give 0.
     pub fn scalarize(&self, objectives: &[f64]) -> f64 {
-        let u = self.objectives.iter().zip(objectives).map(|(o, &j)| o.normalise(j));
+        let u = self
+            .objectives
+            .iter()
+            .zip(objectives)
+            .map(|(o, &j)| o.normalise(j));
         match self.scalarization {
             Scalarization::MaxMin => {
                 let m = u.fold(f64::INFINITY, f64::min);
@@ -178,14 +220,23 @@ impl Problem {
                 if wsum <= 0.0 {
                     return 0.0;
                 }
-                self.objectives.iter().zip(u).map(|(o, u)| o.weight * u).sum::<f64>() / wsum
+                self.objectives
+                    .iter()
+                    .zip(u)
+                    .map(|(o, u)| o.weight * u)
+                    .sum::<f64>()
+                    / wsum
             }
         }
     }
 
     /// Sum of normalised constraint violations (0 when all constraints hold).
     pub fn violation(&self, constraints: &[f64]) -> f64 {
-        self.constraints.iter().zip(constraints).map(|(c, &v)| c.violation(v)).sum()
+        self.constraints
+            .iter()
+            .zip(constraints)
+            .map(|(c, &v)| c.violation(v))
+            .sum()
     }
 
     /// Feasible: complete (not censored) and every constraint met.
@@ -196,7 +247,9 @@ impl Problem {
     /// Checks an observation's shape and finiteness against this problem.
     pub fn check(&self, obs: &Observation) -> Result<()> {
         self.space.check(&obs.x)?;
-        if obs.objectives.len() != self.objectives.len() || obs.constraints.len() != self.constraints.len() {
+        if obs.objectives.len() != self.objectives.len()
+            || obs.constraints.len() != self.constraints.len()
+        {
             return Err(Error::Observation(format!(
                 "expected {} objective and {} constraint values, got {} and {}",
                 self.objectives.len(),
@@ -205,8 +258,16 @@ impl Problem {
                 obs.constraints.len()
             )));
         }
-        if obs.objectives.iter().chain(&obs.constraints).any(|v| !v.is_finite()) {
-            return Err(Error::Observation(format!("non-finite metric in observation at {:?}", obs.x)));
+        if obs
+            .objectives
+            .iter()
+            .chain(&obs.constraints)
+            .any(|v| !v.is_finite())
+        {
+            return Err(Error::Observation(format!(
+                "non-finite metric in observation at {:?}",
+                obs.x
+            )));
         }
         Ok(())
     }
@@ -221,7 +282,13 @@ mod tests {
         let space = Space::new(vec![Knob::linear("q", 0.0, 1.0)]).unwrap();
         let mut web = Objective::capped("web_hz", 20.0);
         web.weight = 3.0;
-        Problem::new(space, vec![Objective::capped("detector_hz", 10.0), web], vec![], s).unwrap()
+        Problem::new(
+            space,
+            vec![Objective::capped("detector_hz", 10.0), web],
+            vec![],
+            s,
+        )
+        .unwrap()
     }
 
     #[test]
@@ -237,14 +304,25 @@ mod tests {
         let mm = problem(Scalarization::MaxMin);
         let w = problem(Scalarization::Weighted);
         for ((d, web), (want_mm, want_w)) in table {
-            assert!((mm.scalarize(&[d, web]) - want_mm).abs() < 1e-12, "max-min at {d},{web}");
-            assert!((w.scalarize(&[d, web]) - want_w).abs() < 1e-12, "weighted at {d},{web}");
+            assert!(
+                (mm.scalarize(&[d, web]) - want_mm).abs() < 1e-12,
+                "max-min at {d},{web}"
+            );
+            assert!(
+                (w.scalarize(&[d, web]) - want_w).abs() < 1e-12,
+                "weighted at {d},{web}"
+            );
         }
     }
 
     #[test]
     fn minimised_and_uncapped_objectives() {
-        let lat = Objective { name: "lat".into(), goal: Goal::Minimize, cap: Some(50.0), weight: 1.0 };
+        let lat = Objective {
+            name: "lat".into(),
+            goal: Goal::Minimize,
+            cap: Some(50.0),
+            weight: 1.0,
+        };
         assert_eq!(lat.normalise(25.0), 1.0);
         assert_eq!(lat.normalise(100.0), 0.5);
         assert_eq!(Objective::raw("cost", Goal::Minimize).normalise(3.0), -3.0);

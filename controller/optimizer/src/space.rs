@@ -29,12 +29,24 @@ pub struct Knob {
 impl Knob {
     /// A continuous linear knob.
     pub fn linear(name: &str, lower: f64, upper: f64) -> Self {
-        Self { name: name.to_owned(), lower, upper, scale: Scale::Linear, step: None }
+        Self {
+            name: name.to_owned(),
+            lower,
+            upper,
+            scale: Scale::Linear,
+            step: None,
+        }
     }
 
     /// A continuous log-scale knob.
     pub fn log(name: &str, lower: f64, upper: f64) -> Self {
-        Self { name: name.to_owned(), lower, upper, scale: Scale::Log, step: None }
+        Self {
+            name: name.to_owned(),
+            lower,
+            upper,
+            scale: Scale::Log,
+            step: None,
+        }
     }
 
     /// The same knob restricted to multiples of `step` above `lower`.
@@ -44,9 +56,17 @@ impl Knob {
     }
 
     fn validate(&self) -> Result<()> {
-        let err = |reason: String| Err(Error::Knob { name: self.name.clone(), reason });
+        let err = |reason: String| {
+            Err(Error::Knob {
+                name: self.name.clone(),
+                reason,
+            })
+        };
         if !(self.lower.is_finite() && self.upper.is_finite() && self.lower < self.upper) {
-            return err(format!("bounds [{}, {}] must be finite with lower < upper", self.lower, self.upper));
+            return err(format!(
+                "bounds [{}, {}] must be finite with lower < upper",
+                self.lower, self.upper
+            ));
         }
         if self.scale == Scale::Log && self.lower <= 0.0 {
             return err(format!("log scale needs lower > 0, got {}", self.lower));
@@ -63,7 +83,10 @@ impl Knob {
     pub fn to_unit(&self, v: f64) -> f64 {
         let u = match self.scale {
             Scale::Linear => (v - self.lower) / (self.upper - self.lower),
-            Scale::Log => (v.max(f64::MIN_POSITIVE).ln() - self.lower.ln()) / (self.upper.ln() - self.lower.ln()),
+            Scale::Log => {
+                (v.max(f64::MIN_POSITIVE).ln() - self.lower.ln())
+                    / (self.upper.ln() - self.lower.ln())
+            }
         };
         u.clamp(0.0, 1.0)
     }
@@ -107,7 +130,10 @@ impl Space {
         for (i, k) in knobs.iter().enumerate() {
             k.validate()?;
             if knobs[..i].iter().any(|o| o.name == k.name) {
-                return Err(Error::Knob { name: k.name.clone(), reason: "duplicate name".into() });
+                return Err(Error::Knob {
+                    name: k.name.clone(),
+                    reason: "duplicate name".into(),
+                });
             }
         }
         Ok(Self { knobs })
@@ -124,20 +150,35 @@ impl Space {
     /// Checks a configuration has one finite value per knob.
     pub fn check(&self, x: &[f64]) -> Result<()> {
         if x.len() != self.dim() {
-            return Err(Error::Observation(format!("config has {} values, the space has {} knobs", x.len(), self.dim())));
+            return Err(Error::Observation(format!(
+                "config has {} values, the space has {} knobs",
+                x.len(),
+                self.dim()
+            )));
         }
         if let Some((k, v)) = self.knobs.iter().zip(x).find(|(_, v)| !v.is_finite()) {
-            return Err(Error::Observation(format!("knob {:?} has non-finite value {v}", k.name)));
+            return Err(Error::Observation(format!(
+                "knob {:?} has non-finite value {v}",
+                k.name
+            )));
         }
         Ok(())
     }
 
     pub fn to_unit(&self, x: &[f64]) -> Vec<f64> {
-        self.knobs.iter().zip(x).map(|(k, &v)| k.to_unit(v)).collect()
+        self.knobs
+            .iter()
+            .zip(x)
+            .map(|(k, &v)| k.to_unit(v))
+            .collect()
     }
 
     pub fn from_unit(&self, u: &[f64]) -> Vec<f64> {
-        self.knobs.iter().zip(u).map(|(k, &v)| k.from_unit(v)).collect()
+        self.knobs
+            .iter()
+            .zip(u)
+            .map(|(k, &v)| k.from_unit(v))
+            .collect()
     }
 
     /// The unit-cube point of the config a unit point actually maps to (after snapping).
@@ -160,7 +201,10 @@ mod tests {
         .unwrap();
         let x = s.from_unit(&[0.5, 0.5, 0.5]);
         assert!((x[0] - 1.05).abs() < 1e-12);
-        assert!((x[1] - 10.0).abs() < 1e-9, "log midpoint is the geometric mean");
+        assert!(
+            (x[1] - 10.0).abs() < 1e-9,
+            "log midpoint is the geometric mean"
+        );
         assert_eq!(x[2], 5.0); // 1 + 3.5 rounds to 5 (4.5 rounds half away from zero)
         let u = s.to_unit(&x);
         assert!((u[0] - 0.5).abs() < 1e-12 && (u[1] - 0.5).abs() < 1e-12);
@@ -172,7 +216,13 @@ mod tests {
         let e = Space::new(vec![Knob::log("rate", 0.0, 1.0)]).unwrap_err();
         assert!(e.to_string().contains("rate"), "{e}");
         assert!(Space::new(vec![Knob::linear("a", 1.0, 1.0)]).is_err());
-        assert!(Space::new(vec![Knob::linear("a", 0.0, 1.0), Knob::linear("a", 0.0, 2.0)]).is_err());
+        assert!(
+            Space::new(vec![
+                Knob::linear("a", 0.0, 1.0),
+                Knob::linear("a", 0.0, 2.0)
+            ])
+            .is_err()
+        );
         assert!(Space::new(vec![Knob::linear("a", 0.0, 1.0).with_step(0.0)]).is_err());
     }
 }

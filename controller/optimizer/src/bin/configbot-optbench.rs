@@ -5,7 +5,8 @@
 //!   proposal-time measurement (100 observations, 10 dimensions), the UNSAT
 //!   check and the safe-exploration check on the robot model; prints tables
 //!   and writes `optbench.json` (best-feasible-so-far per evaluation).
-//!   `--quick` shrinks seeds and budgets for CI; `--out PATH` moves the JSON.
+//!   `--quick` shrinks seeds and budgets for CI; `--out PATH` moves the JSON;
+//!   `--skip-compare` runs only the timing, UNSAT and safety parts.
 //! - `--problem P --seed S --budget N [--method bo|random|sobol] [--safe] --json`:
 //!   one run, printing its trace as JSON (for other tools).
 //! - `--search-best P`: large random search + coordinate refinement, to
@@ -48,7 +49,10 @@ fn bo_settings(seed: u64, budget: usize, safe: bool) -> Settings {
     Settings {
         seed,
         max_trials: budget,
-        safety: safe.then_some(SafetyFloor { fraction_of_target: 0.8, beta: 3.0 }),
+        safety: safe.then_some(SafetyFloor {
+            fraction_of_target: 0.8,
+            beta: 3.0,
+        }),
         unsat_when_pof_below: Some(0.01),
         ..Settings::default()
     }
@@ -66,9 +70,18 @@ fn run(p: &TestProblem, method: Method, seed: u64, budget: usize, safe: bool) ->
         floor_violations: 0,
         ask_ms: Vec::new(),
     };
-    let floor = SafetyFloor { fraction_of_target: 0.8, beta: 3.0 };
+    let floor = SafetyFloor {
+        fraction_of_target: 0.8,
+        beta: 3.0,
+    };
     let mut record = |trace: &mut Trace, obs: &configbot_optimizer::Observation| {
-        if safe && p.problem.constraints.iter().zip(&obs.constraints).any(|(c, &v)| !floor.holds(c, v)) {
+        if safe
+            && p.problem
+                .constraints
+                .iter()
+                .zip(&obs.constraints)
+                .any(|(c, &v)| !floor.holds(c, v))
+        {
             trace.floor_violations += 1;
         }
         if p.problem.is_feasible(obs) {
@@ -83,7 +96,11 @@ fn run(p: &TestProblem, method: Method, seed: u64, budget: usize, safe: bool) ->
     let dim = p.problem.space.dim();
     match method {
         Method::Bo => {
-            let mut opt = Optimizer::new(p.problem.clone(), bo_settings(seed, budget, safe), &p.current)?;
+            let mut opt = Optimizer::new(
+                p.problem.clone(),
+                bo_settings(seed, budget, safe),
+                &p.current,
+            )?;
             loop {
                 let t = Instant::now();
                 let prop = opt.ask()?;
@@ -103,7 +120,11 @@ fn run(p: &TestProblem, method: Method, seed: u64, budget: usize, safe: bool) ->
             let mut rng = Rng::seed_from_u64(seed);
             for i in 0..budget {
                 let u: Vec<f64> = (0..dim).map(|_| rng.uniform()).collect();
-                let x = if i == 0 { p.current.clone() } else { p.problem.space.from_unit(&u) };
+                let x = if i == 0 {
+                    p.current.clone()
+                } else {
+                    p.problem.space.from_unit(&u)
+                };
                 record(&mut trace, &p.evaluate(&x));
             }
         }
@@ -111,7 +132,11 @@ fn run(p: &TestProblem, method: Method, seed: u64, budget: usize, safe: bool) ->
             let mut rng = Rng::seed_from_u64(seed);
             let mut s = Sobol::scrambled(dim, &mut rng);
             for i in 0..budget {
-                let x = if i == 0 { p.current.clone() } else { p.problem.space.from_unit(&s.point(i as u64 - 1)) };
+                let x = if i == 0 {
+                    p.current.clone()
+                } else {
+                    p.problem.space.from_unit(&s.point(i as u64 - 1))
+                };
                 record(&mut trace, &p.evaluate(&x));
             }
         }
@@ -167,11 +192,15 @@ fn search_best(p: &TestProblem, samples: usize) -> (f64, Vec<f64>) {
 }
 
 fn arg(args: &[String], name: &str) -> Option<String> {
-    args.iter().position(|a| a == name).and_then(|i| args.get(i + 1).cloned())
+    args.iter()
+        .position(|a| a == name)
+        .and_then(|i| args.get(i + 1).cloned())
 }
 
 fn load(name: &str) -> Result<TestProblem> {
-    problems::by_name(name).with_context(|| format!("unknown problem {name:?}; known: {:?}", problems::NAMES))?.map_err(Into::into)
+    problems::by_name(name)
+        .with_context(|| format!("unknown problem {name:?}; known: {:?}", problems::NAMES))?
+        .map_err(Into::into)
 }
 
 fn main() -> Result<()> {
@@ -180,7 +209,10 @@ fn main() -> Result<()> {
         let p = load(&name)?;
         let samples = arg(&args, "--samples").map_or(Ok(200_000), |s| s.parse())?;
         let (v, x) = search_best(&p, samples);
-        println!("{name}: best feasible scalar {v:.6} at {x:?} (stated best-known {:?})", p.best_known);
+        println!(
+            "{name}: best feasible scalar {v:.6} at {x:?} (stated best-known {:?})",
+            p.best_known
+        );
         return Ok(());
     }
     if let Some(name) = arg(&args, "--problem") {
@@ -197,7 +229,11 @@ fn main() -> Result<()> {
         if args.iter().any(|a| a == "--json") {
             println!("{}", serde_json::to_string(&trace)?);
         } else {
-            println!("{name} {method:?} seed {seed}: evals to 5% {:?}, final best {:?}", trace.evals_to_5pct, trace.best_so_far.last());
+            println!(
+                "{name} {method:?} seed {seed}: evals to 5% {:?}, final best {:?}",
+                trace.evals_to_5pct,
+                trace.best_so_far.last()
+            );
         }
         return Ok(());
     }
@@ -210,22 +246,40 @@ fn median(mut v: Vec<f64>) -> f64 {
         return f64::NAN;
     }
     let n = v.len();
-    if n % 2 == 1 { v[n / 2] } else { 0.5 * (v[n / 2 - 1] + v[n / 2]) }
+    if n % 2 == 1 {
+        v[n / 2]
+    } else {
+        0.5 * (v[n / 2 - 1] + v[n / 2])
+    }
 }
 
 fn percentile(mut v: Vec<f64>, q: f64) -> f64 {
     v.sort_by(f64::total_cmp);
-    v.get(((v.len() as f64 - 1.0) * q).round() as usize).copied().unwrap_or(f64::NAN)
+    v.get(((v.len() as f64 - 1.0) * q).round() as usize)
+        .copied()
+        .unwrap_or(f64::NAN)
 }
 
 /// Median evaluations to 5 %, counting a run that never got there as budget + 1.
 fn median_evals(traces: &[Trace], budget: usize) -> (f64, usize) {
     let reached = traces.iter().filter(|t| t.evals_to_5pct.is_some()).count();
-    (median(traces.iter().map(|t| t.evals_to_5pct.unwrap_or(budget + 1) as f64).collect()), reached)
+    (
+        median(
+            traces
+                .iter()
+                .map(|t| t.evals_to_5pct.unwrap_or(budget + 1) as f64)
+                .collect(),
+        ),
+        reached,
+    )
 }
 
 fn fmt_median(m: f64, budget: usize) -> String {
-    if m > budget as f64 { format!(">{budget}") } else { format!("{m:.1}") }
+    if m > budget as f64 {
+        format!(">{budget}")
+    } else {
+        format!("{m:.1}")
+    }
 }
 
 #[derive(Serialize)]
@@ -248,9 +302,13 @@ struct ProposalTime {
 
 /// Proposal time with ~100 observations in 10 dimensions (asks at n = 100..120).
 fn proposal_time(seeds: u64, asks: usize) -> Result<ProposalTime> {
-    use configbot_optimizer::{Constraint, Goal, Knob, Objective, Observation, Problem, Scalarization, Space};
+    use configbot_optimizer::{
+        Constraint, Goal, Knob, Objective, Observation, Problem, Scalarization, Space,
+    };
     let dim = 10;
-    let knobs = (0..dim).map(|i| Knob::linear(&format!("k{i}"), 0.0, 1.0)).collect();
+    let knobs = (0..dim)
+        .map(|i| Knob::linear(&format!("k{i}"), 0.0, 1.0))
+        .collect();
     let problem = Problem::new(
         Space::new(knobs)?,
         vec![Objective::raw("f", Goal::Maximize)],
@@ -258,13 +316,26 @@ fn proposal_time(seeds: u64, asks: usize) -> Result<ProposalTime> {
         Scalarization::MaxMin,
     )?;
     let eval = |x: &[f64]| -> Observation {
-        let f = -x.iter().enumerate().map(|(i, v)| (v - 0.3 - 0.04 * i as f64).powi(2)).sum::<f64>()
+        let f = -x
+            .iter()
+            .enumerate()
+            .map(|(i, v)| (v - 0.3 - 0.04 * i as f64).powi(2))
+            .sum::<f64>()
             + 0.1 * (7.0 * x[0]).sin() * (5.0 * x[3]).cos();
-        Observation { x: x.to_vec(), objectives: vec![f], constraints: vec![x.iter().sum()], censored: false }
+        Observation {
+            x: x.to_vec(),
+            objectives: vec![f],
+            constraints: vec![x.iter().sum()],
+            censored: false,
+        }
     };
     let mut times = Vec::new();
     for seed in 0..seeds {
-        let settings = Settings { seed, max_trials: 100 + asks, ..Settings::default() };
+        let settings = Settings {
+            seed,
+            max_trials: 100 + asks,
+            ..Settings::default()
+        };
         let mut opt = Optimizer::new(problem.clone(), settings, &vec![0.5; dim])?;
         let mut rng = Rng::seed_from_u64(seed);
         let mut s = Sobol::scrambled(dim, &mut rng);
@@ -299,9 +370,26 @@ fn full(args: &[String]) -> Result<()> {
     let seeds: u64 = if quick { 3 } else { 20 };
     let baseline_budget = if quick { 500 } else { 3000 };
     let mut comparison = Vec::new();
-    println!("median evaluations to reach within 5% of the best-known feasible value ({seeds} seeds)");
-    println!("{:<16} {:>6} {:>12} {:>12} {:>12} {:>14} {:>10}", "problem", "dims", "bo", "random", "sobol", "random/bo", "bo reached");
-    for name in ["gardner", "gramacy", "branin", "pressure-vessel", "welded-beam", "robot"] {
+    println!(
+        "median evaluations to reach within 5% of the best-known feasible value ({seeds} seeds)"
+    );
+    println!(
+        "{:<16} {:>6} {:>12} {:>12} {:>12} {:>14} {:>10}",
+        "problem", "dims", "bo", "random", "sobol", "random/bo", "bo reached"
+    );
+    let names: &[&str] = if args.iter().any(|a| a == "--skip-compare") {
+        &[]
+    } else {
+        &[
+            "gardner",
+            "gramacy",
+            "branin",
+            "pressure-vessel",
+            "welded-beam",
+            "robot",
+        ]
+    };
+    for &name in names {
         let p = load(name)?;
         let bo_budget = match (quick, p.problem.space.dim()) {
             (true, _) => 30,
@@ -317,7 +405,15 @@ fn full(args: &[String]) -> Result<()> {
         let (mb, rb) = median_evals(&bo, bo_budget);
         let (mr, _) = median_evals(&rnd, baseline_budget);
         let (ms, _) = median_evals(&sob, baseline_budget);
-        let ratio = if mb > bo_budget as f64 { "n/a".to_owned() } else { format!("{}{:.1}x", if mr > baseline_budget as f64 { ">" } else { "" }, mr / mb) };
+        let ratio = if mb > bo_budget as f64 {
+            "n/a".to_owned()
+        } else {
+            format!(
+                "{}{:.1}x",
+                if mr > baseline_budget as f64 { ">" } else { "" },
+                mr / mb
+            )
+        };
         println!(
             "{:<16} {:>6} {:>12} {:>12} {:>12} {:>14} {:>7}/{}",
             name,
@@ -339,11 +435,20 @@ fn full(args: &[String]) -> Result<()> {
     );
 
     let inf = load("gramacy-infeasible")?;
-    let unsat: Vec<Trace> = (0..seeds).map(|s| run(&inf, Method::Bo, s, 40, false)).collect::<Result<_>>()?;
-    let n_unsat = unsat.iter().filter(|t| matches!(t.outcome, Some(Outcome::Unsat { .. }))).count();
+    let unsat: Vec<Trace> = (0..seeds)
+        .map(|s| run(&inf, Method::Bo, s, 40, false))
+        .collect::<Result<_>>()?;
+    let n_unsat = unsat
+        .iter()
+        .filter(|t| matches!(t.outcome, Some(Outcome::Unsat { .. })))
+        .count();
     let trials = median(unsat.iter().map(|t| t.best_so_far.len() as f64).collect());
-    println!("\ninfeasible problem (gramacy-infeasible, budget 40): UNSAT in {n_unsat}/{seeds} runs, median trials used {trials:.0}");
-    if let Some(Some(Outcome::Unsat { unsat: u, reason })) = unsat.first().map(|t| t.outcome.clone()) {
+    println!(
+        "\ninfeasible problem (gramacy-infeasible, budget 40): UNSAT in {n_unsat}/{seeds} runs, median trials used {trials:.0}"
+    );
+    if let Some(Some(Outcome::Unsat { unsat: u, reason })) =
+        unsat.first().map(|t| t.outcome.clone())
+    {
         println!(
             "  seed 0 evidence: reason {reason:?}, nearest violation {:.4} at {:?}, p_any_feasible {:?}",
             u.nearest_violation,
@@ -354,7 +459,9 @@ fn full(args: &[String]) -> Result<()> {
 
     let robot = load("robot")?;
     let safe_budget = if quick { 30 } else { 60 };
-    let safe: Vec<Trace> = (0..seeds).map(|s| run(&robot, Method::Bo, s, safe_budget, true)).collect::<Result<_>>()?;
+    let safe: Vec<Trace> = (0..seeds)
+        .map(|s| run(&robot, Method::Bo, s, safe_budget, true))
+        .collect::<Result<_>>()?;
     let violations: usize = safe.iter().map(|t| t.floor_violations).sum();
     let proposals: usize = safe.iter().map(|t| t.best_so_far.len()).sum();
     let (ms, reached) = median_evals(&safe, safe_budget);
@@ -363,8 +470,14 @@ fn full(args: &[String]) -> Result<()> {
         fmt_median(ms, safe_budget)
     );
 
-    let report = Report { comparison, proposal_ms: pt, unsat, safe };
-    std::fs::write(&out, serde_json::to_string(&report)?).with_context(|| format!("writing {out}"))?;
+    let report = Report {
+        comparison,
+        proposal_ms: pt,
+        unsat,
+        safe,
+    };
+    std::fs::write(&out, serde_json::to_string(&report)?)
+        .with_context(|| format!("writing {out}"))?;
     println!("\nwrote {out}");
     Ok(())
 }

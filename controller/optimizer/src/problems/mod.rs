@@ -13,6 +13,9 @@ pub use robot::{RobotModel, RobotRates};
 use crate::error::Result;
 use crate::problem::{Observation, Problem};
 
+/// A simulator: objective and constraint values at a config.
+pub type Simulator = fn(&[f64]) -> (Vec<f64>, Vec<f64>);
+
 /// A problem with its simulator and reference answer.
 #[derive(Debug, Clone)]
 pub struct TestProblem {
@@ -26,20 +29,27 @@ pub struct TestProblem {
     pub best_x: Option<Vec<f64>>,
     /// Where `best_known` comes from.
     pub source: &'static str,
-    eval: fn(&[f64]) -> (Vec<f64>, Vec<f64>),
+    eval: Simulator,
 }
 
 impl TestProblem {
     /// Runs the simulator: objective and constraint values at `x` (real units).
     pub fn evaluate(&self, x: &[f64]) -> Observation {
         let (objectives, constraints) = (self.eval)(x);
-        Observation { x: x.to_vec(), objectives, constraints, censored: false }
+        Observation {
+            x: x.to_vec(),
+            objectives,
+            constraints,
+            censored: false,
+        }
     }
 
     /// The scalar of a feasible evaluation, `None` if infeasible.
     pub fn feasible_value(&self, x: &[f64]) -> Option<f64> {
         let o = self.evaluate(x);
-        self.problem.is_feasible(&o).then(|| self.problem.scalarize(&o.objectives))
+        self.problem
+            .is_feasible(&o)
+            .then(|| self.problem.scalarize(&o.objectives))
     }
 
     /// Whether `value` is within `frac` of the best-known value.
@@ -49,8 +59,15 @@ impl TestProblem {
 }
 
 /// Names accepted by [`by_name`].
-pub const NAMES: [&str; 7] =
-    ["gardner", "gramacy", "branin", "pressure-vessel", "welded-beam", "robot", "gramacy-infeasible"];
+pub const NAMES: [&str; 7] = [
+    "gardner",
+    "gramacy",
+    "branin",
+    "pressure-vessel",
+    "welded-beam",
+    "robot",
+    "gramacy-infeasible",
+];
 
 /// A problem by name.
 pub fn by_name(name: &str) -> Option<Result<TestProblem>> {
@@ -78,10 +95,19 @@ mod tests {
             p.problem.space.check(&p.current).unwrap();
             match (p.best_known, &p.best_x) {
                 (Some(best), Some(x)) => {
-                    let v = p.feasible_value(x).unwrap_or_else(|| panic!("{name}: best_x infeasible: {:?}", p.evaluate(x)));
-                    assert!((v - best).abs() <= 1e-3 * best.abs().max(1e-3), "{name}: value {v} vs best-known {best}");
+                    let v = p.feasible_value(x).unwrap_or_else(|| {
+                        panic!("{name}: best_x infeasible: {:?}", p.evaluate(x))
+                    });
+                    assert!(
+                        (v - best).abs() <= 1e-3 * best.abs().max(1e-3),
+                        "{name}: value {v} vs best-known {best}"
+                    );
                     for (k, xv) in p.problem.space.knobs().iter().zip(x) {
-                        assert!((k.lower..=k.upper).contains(xv), "{name}: {} = {xv} out of bounds", k.name);
+                        assert!(
+                            (k.lower..=k.upper).contains(xv),
+                            "{name}: {} = {xv} out of bounds",
+                            k.name
+                        );
                     }
                 }
                 (None, None) => assert!(name.contains("infeasible")),

@@ -78,7 +78,9 @@ fn share(caps: &[f64; 7], weights: &[f64; 7], capacity: f64) -> [f64; 7] {
     while !active.is_empty() {
         let wsum: f64 = active.iter().map(|&i| weights[i]).sum();
         let per_weight = remaining / wsum;
-        let (sat, unsat): (Vec<usize>, Vec<usize>) = active.iter().partition(|&&i| caps[i] <= weights[i] * per_weight);
+        let (sat, unsat): (Vec<usize>, Vec<usize>) = active
+            .iter()
+            .partition(|&&i| caps[i] <= weights[i] * per_weight);
         if sat.is_empty() {
             for &i in &unsat {
                 alloc[i] = weights[i] * per_weight;
@@ -102,7 +104,13 @@ impl RobotModel {
         let threads = [1.0, 1.0, 1.0, 1.0, 1.0, 2.0, 1.0];
         let (ad_det, ad_web_f, ad_web_s, planner_hz) = (x[9], x[10], x[11], x[12]);
         let mut frac = [1.0f64; 7];
-        let mut out = RobotRates { cmd_vel_hz: 0.0, amcl_hz: 0.0, detector_hz: 0.0, web_hz: 0.0, alloc: [0.0; 7] };
+        let mut out = RobotRates {
+            cmd_vel_hz: 0.0,
+            amcl_hz: 0.0,
+            detector_hz: 0.0,
+            web_hz: 0.0,
+            alloc: [0.0; 7],
+        };
         for _ in 0..60 {
             let scans = LIDAR_HZ * frac[0];
             let frames = CAMERA_HZ * frac[4];
@@ -120,8 +128,13 @@ impl RobotModel {
             ];
             let caps: [f64; 7] = std::array::from_fn(|i| demand[i].min(quota[i]).min(threads[i]));
             let alloc = share(&caps, &weights, CORES);
-            let new_frac: [f64; 7] =
-                std::array::from_fn(|i| if demand[i] > 0.0 { (alloc[i] / demand[i]).min(1.0) } else { 1.0 });
+            let new_frac: [f64; 7] = std::array::from_fn(|i| {
+                if demand[i] > 0.0 {
+                    (alloc[i] / demand[i]).min(1.0)
+                } else {
+                    1.0
+                }
+            });
             // Damped update keeps the fixed-point iteration from oscillating.
             for i in 0..7 {
                 frac[i] = 0.5 * frac[i] + 0.5 * new_frac[i];
@@ -129,7 +142,10 @@ impl RobotModel {
             let amcl_hz = scans * frac[1];
             let costmap_hz = scans * frac[2];
             out = RobotRates {
-                cmd_vel_hz: planner_hz * frac[3] * (amcl_hz / 30.0).min(1.0) * (costmap_hz / 25.0).min(1.0),
+                cmd_vel_hz: planner_hz
+                    * frac[3]
+                    * (amcl_hz / 30.0).min(1.0)
+                    * (costmap_hz / 25.0).min(1.0),
                 amcl_hz,
                 detector_hz: det_in * frac[5],
                 web_hz: web_f_in * frac[6],
@@ -160,8 +176,14 @@ pub fn problem() -> Result<TestProblem> {
     ];
     let problem = Problem::new(
         Space::new(knobs)?,
-        vec![Objective::capped("detector_hz", 10.0), Objective::capped("web_hz", 15.0)],
-        vec![Constraint::at_least("cmd_vel_hz", 35.0), Constraint::at_least("amcl_hz", 30.0)],
+        vec![
+            Objective::capped("detector_hz", 10.0),
+            Objective::capped("web_hz", 15.0),
+        ],
+        vec![
+            Constraint::at_least("cmd_vel_hz", 35.0),
+            Constraint::at_least("amcl_hz", 30.0),
+        ],
         Scalarization::MaxMin,
     )?;
     fn eval(x: &[f64]) -> (Vec<f64>, Vec<f64>) {
@@ -172,7 +194,9 @@ pub fn problem() -> Result<TestProblem> {
         name: "robot",
         problem,
         // Today's deployment: core nodes unrestricted, non-core apps throttled hard.
-        current: vec![1.0, 1.0, 1.0, 1.0, 1.0, 0.3, 0.2, 1.0, 1.0, 3.0, 2.0, 2.0, 40.0],
+        current: vec![
+            1.0, 1.0, 1.0, 1.0, 1.0, 0.3, 0.2, 1.0, 1.0, 3.0, 2.0, 2.0, 40.0,
+        ],
         best_known: Some(ROBOT_BEST),
         best_x: Some(ROBOT_X.to_vec()),
         source: "random search (300k configs) + coordinate refinement, `configbot-optbench --search-best robot`",
@@ -217,13 +241,23 @@ mod tests {
         greedy[11] = 40.0;
         let g = RobotModel::rates(&greedy);
         assert!(g.amcl_hz < 30.0 || g.cmd_vel_hz < 35.0, "{g:?}");
-        assert!((g.alloc.iter().sum::<f64>() - CORES).abs() < 1e-6, "saturated machine: {g:?}");
+        assert!(
+            (g.alloc.iter().sum::<f64>() - CORES).abs() < 1e-6,
+            "saturated machine: {g:?}"
+        );
     }
 
     #[test]
     fn water_filling_respects_caps_and_weights() {
-        let a = share(&[0.1, 1.0, 1.0, 0.0, 0.0, 0.0, 0.0], &[1.0, 1.0, 3.0, 1.0, 1.0, 1.0, 1.0], 1.0);
+        let a = share(
+            &[0.1, 1.0, 1.0, 0.0, 0.0, 0.0, 0.0],
+            &[1.0, 1.0, 3.0, 1.0, 1.0, 1.0, 1.0],
+            1.0,
+        );
         assert!((a[0] - 0.1).abs() < 1e-12);
-        assert!((a[1] - 0.225).abs() < 1e-12 && (a[2] - 0.675).abs() < 1e-12, "{a:?}");
+        assert!(
+            (a[1] - 0.225).abs() < 1e-12 && (a[2] - 0.675).abs() < 1e-12,
+            "{a:?}"
+        );
     }
 }

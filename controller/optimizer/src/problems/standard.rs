@@ -10,8 +10,15 @@ use crate::problem::{Constraint, Goal, Objective, Problem, Scalarization};
 use crate::space::{Knob, Space};
 
 fn minimise(knobs: Vec<Knob>, n_constraints: usize) -> Result<Problem> {
-    let constraints = (1..=n_constraints).map(|i| Constraint::at_most(&format!("g{i}"), 0.0)).collect();
-    Problem::new(Space::new(knobs)?, vec![Objective::raw("f", Goal::Minimize)], constraints, Scalarization::MaxMin)
+    let constraints = (1..=n_constraints)
+        .map(|i| Constraint::at_most(&format!("g{i}"), 0.0))
+        .collect();
+    Problem::new(
+        Space::new(knobs)?,
+        vec![Objective::raw("f", Goal::Minimize)],
+        constraints,
+        Scalarization::MaxMin,
+    )
 }
 
 /// Gardner et al. 2014, toy problem: min cos(2x1)cos(x2) + sin(x1) s.t.
@@ -27,7 +34,10 @@ pub fn gardner() -> Result<TestProblem> {
     }
     Ok(TestProblem {
         name: "gardner",
-        problem: minimise(vec![Knob::linear("x1", 0.0, 6.0), Knob::linear("x2", 0.0, 6.0)], 1)?,
+        problem: minimise(
+            vec![Knob::linear("x1", 0.0, 6.0), Knob::linear("x2", 0.0, 6.0)],
+            1,
+        )?,
         current: vec![3.0, 3.0],
         best_known: Some(GARDNER_BEST),
         best_x: Some(GARDNER_X.to_vec()),
@@ -48,14 +58,27 @@ pub fn gramacy(infeasible: bool) -> Result<TestProblem> {
         1.5 - x[0] - 2.0 * x[1] - 0.5 * (2.0 * PI * (x[0] * x[0] - 2.0 * x[1])).sin()
     }
     fn eval(x: &[f64]) -> (Vec<f64>, Vec<f64>) {
-        (vec![x[0] + x[1]], vec![c1(x), x[0] * x[0] + x[1] * x[1] - 1.5])
+        (
+            vec![x[0] + x[1]],
+            vec![c1(x), x[0] * x[0] + x[1] * x[1] - 1.5],
+        )
     }
     fn eval_infeasible(x: &[f64]) -> (Vec<f64>, Vec<f64>) {
-        (vec![x[0] + x[1]], vec![c1(x), x[0] * x[0] + x[1] * x[1] - 0.1])
+        (
+            vec![x[0] + x[1]],
+            vec![c1(x), x[0] * x[0] + x[1] * x[1] - 0.1],
+        )
     }
     Ok(TestProblem {
-        name: if infeasible { "gramacy-infeasible" } else { "gramacy" },
-        problem: minimise(vec![Knob::linear("x1", 0.0, 1.0), Knob::linear("x2", 0.0, 1.0)], 2)?,
+        name: if infeasible {
+            "gramacy-infeasible"
+        } else {
+            "gramacy"
+        },
+        problem: minimise(
+            vec![Knob::linear("x1", 0.0, 1.0), Knob::linear("x2", 0.0, 1.0)],
+            2,
+        )?,
         current: vec![0.5, 0.5],
         best_known: (!infeasible).then_some(-0.599_8),
         best_x: (!infeasible).then(|| vec![0.195_4, 0.404_5]),
@@ -82,7 +105,13 @@ pub fn branin() -> Result<TestProblem> {
     }
     Ok(TestProblem {
         name: "branin",
-        problem: minimise(vec![Knob::linear("x1", -5.0, 10.0), Knob::linear("x2", 0.0, 15.0)], 1)?,
+        problem: minimise(
+            vec![
+                Knob::linear("x1", -5.0, 10.0),
+                Knob::linear("x2", 0.0, 15.0),
+            ],
+            1,
+        )?,
         current: vec![2.5, 7.5],
         best_known: Some(BRANIN_BEST),
         best_x: Some(BRANIN_X.to_vec()),
@@ -100,7 +129,8 @@ pub(crate) const BRANIN_X: [f64; 2] = [3.268_842_088_316_544_5, 0.050_773_550_65
 pub fn pressure_vessel() -> Result<TestProblem> {
     fn eval(x: &[f64]) -> (Vec<f64>, Vec<f64>) {
         let (ts, th, r, l) = (x[0], x[1], x[2], x[3]);
-        let f = 0.6224 * ts * r * l + 1.7781 * th * r * r + 3.1661 * ts * ts * l + 19.84 * ts * ts * r;
+        let f =
+            0.6224 * ts * r * l + 1.7781 * th * r * r + 3.1661 * ts * ts * l + 19.84 * ts * ts * r;
         let g3 = (1_296_000.0 - PI * r * r * l - 4.0 / 3.0 * PI * r * r * r) / 1_296_000.0;
         (vec![f], vec![-ts + 0.0193 * r, -th + 0.00954 * r, g3])
     }
@@ -140,7 +170,8 @@ pub fn welded_beam() -> Result<TestProblem> {
         let tau = (tau_p * tau_p + 2.0 * tau_p * tau_pp * l / (2.0 * r) + tau_pp * tau_pp).sqrt();
         let sigma = 6.0 * p * len / (b * t * t);
         let delta = 4.0 * p * len.powi(3) / (e * t.powi(3) * b);
-        let pc = 4.013 * e * (t * t * b.powi(6) / 36.0).sqrt() / (len * len) * (1.0 - t / (2.0 * len) * (e / (4.0 * g)).sqrt());
+        let pc = 4.013 * e * (t * t * b.powi(6) / 36.0).sqrt() / (len * len)
+            * (1.0 - t / (2.0 * len) * (e / (4.0 * g)).sqrt());
         let cons = vec![
             tau / 13_600.0 - 1.0,
             sigma / 30_000.0 - 1.0,
