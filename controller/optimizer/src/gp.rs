@@ -63,10 +63,16 @@ const LOG_SN2_BOUNDS: (f64, f64) = (-13.8, 1.0);
 /// How hard to fit hyperparameters.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct FitOptions {
-    /// Random starts besides the warm start and the prior centre.
+    /// Random starting points besides the warm start and the prior centre; all
+    /// starting points are screened by one posterior evaluation each.
     pub random_starts: usize,
-    /// L-BFGS iterations per start.
+    /// L-BFGS runs, from the best-screened starting points.
+    pub local_runs: usize,
+    /// L-BFGS iterations per run.
     pub max_iter: usize,
+    /// Upper bound on every lengthscale (unit-cube units); safe exploration
+    /// caps it so the constraint models cannot extrapolate far with confidence.
+    pub max_lengthscale: Option<f64>,
     /// Smallest output scale used for standardisation (metric units), so that a
     /// handful of identical values do not make the model overconfident.
     pub min_scale: f64,
@@ -75,8 +81,10 @@ pub struct FitOptions {
 impl Default for FitOptions {
     fn default() -> Self {
         Self {
-            random_starts: 2,
-            max_iter: 40,
+            random_starts: 4,
+            local_runs: 2,
+            max_iter: 30,
+            max_lengthscale: None,
             min_scale: 1e-9,
         }
     }
@@ -225,9 +233,12 @@ fn neg_log_posterior(h: &[f64], pairs: &Pairs, z: &DVector<f64>) -> Option<(f64,
     f.is_finite().then_some((f, grad))
 }
 
-fn bounds(dim: usize) -> (Vec<f64>, Vec<f64>) {
+fn bounds(dim: usize, max_ls: Option<f64>) -> (Vec<f64>, Vec<f64>) {
+    let ls_hi = max_ls.map_or(LOG_LS_BOUNDS.1, |m| {
+        m.ln().clamp(LOG_LS_BOUNDS.0 + 0.1, LOG_LS_BOUNDS.1)
+    });
     let mut lo = vec![LOG_LS_BOUNDS.0; dim];
-    let mut hi = vec![LOG_LS_BOUNDS.1; dim];
+    let mut hi = vec![ls_hi; dim];
     lo.extend([LOG_SF2_BOUNDS.0, LOG_SN2_BOUNDS.0]);
     hi.extend([LOG_SF2_BOUNDS.1, LOG_SN2_BOUNDS.1]);
     (lo, hi)
@@ -313,7 +324,7 @@ fn lbfgs(
         x = xn;
         fx = fn_;
         g = gn;
-        if it > 0 && improvement.abs() < 1e-7 * (1.0 + fx.abs()) {
+        if it > 0 && improvement.abs() < 1e-6 * (1.0 + fx.abs()) {
             break;
         }
     }
@@ -333,7 +344,7 @@ impl Gp {
         let (_, _, z) = standardise(y, opts.min_scale);
         let z = DVector::from_vec(z);
         let pairs = Pairs::new(x);
-        let (lo, hi) = bounds(dim);
+        let (lo, hi) = bounds(dim, opts.max_lengthscale);
         let mut starts = Vec::new();
         if let Some(w) = warm.filter(|w| w.log_ls.len() == dim) {
             starts.push(w.to_vec());
@@ -351,7 +362,18 @@ impl Gp {
         let f = |h: &[f64]| neg_log_posterior(h, &pairs, &z);
         let mut best: Option<(Vec<f64>, f64)> = None;
         if x.len() >= 2 {
-            for s in starts {
+            // Screen every starting point with one evaluation, optimise from the best few.
+            let mut screened: Vec<(f64, Vec<f64>)> = starts
+                .into_iter()
+                .filter_map(|mut s| {
+                    for ((v, l), h) in s.iter_mut().zip(&lo).zip(&hi) {
+                        *v = v.clamp(*l, *h);
+                    }
+                    f(&s).map(|(v, _)| (v, s))
+                })
+                .collect();
+            screened.sort_by(|a, b| a.0.total_cmp(&b.0));
+            for (_, s) in screened.into_iter().take(opts.local_runs.max(1)) {
                 if let Some((h, fh)) = lbfgs(&f, s, &lo, &hi, opts.max_iter)
                     && best.as_ref().is_none_or(|(_, fb)| fh < *fb)
                 {
@@ -361,7 +383,16 @@ impl Gp {
         }
         let hyper = match best {
             Some((h, _)) => Hyper::from_slice(&h),
-            None => warm.cloned().unwrap_or_else(|| Hyper::default_for(dim)),
+            None => {
+                let mut h = warm
+                    .cloned()
+                    .unwrap_or_else(|| Hyper::default_for(dim))
+                    .to_vec();
+                for ((v, l), u) in h.iter_mut().zip(&lo).zip(&hi) {
+                    *v = v.clamp(*l, *u);
+                }
+                Hyper::from_slice(&h)
+            }
         };
         Self::condition(x, y, hyper, opts.min_scale)
     }

@@ -69,6 +69,8 @@ pub(crate) struct FitPlan<'a> {
     pub full: bool,
     /// Minimum standardisation scale for constraints as a fraction of `Constraint::scale`.
     pub constraint_min_scale: f64,
+    /// Lengthscale cap for the constraint models (safe exploration).
+    pub constraint_max_lengthscale: Option<f64>,
 }
 
 impl Models {
@@ -85,7 +87,9 @@ impl Models {
         hypers.resize(m + 1, None);
         let mut opts = plan.fit.clone();
         if !plan.full {
+            // Between full refits: screen the previous optimum and the prior centre, one L-BFGS run.
             opts.random_starts = 0;
+            opts.local_runs = 1;
         }
         // Objective: complete trials only (a censored trial's objective is unknown).
         let (ux, y): (Vec<Vec<f64>>, Vec<f64>) = u
@@ -107,6 +111,7 @@ impl Models {
             let y: Vec<f64> = data.iter().map(|o| o.constraints[j]).collect();
             let mut copts = opts.clone();
             copts.min_scale = plan.constraint_min_scale * c.scale();
+            copts.max_lengthscale = plan.constraint_max_lengthscale;
             let gp = Gp::fit(u, &y, &copts, hypers[j + 1].as_ref(), rng)?;
             hypers[j + 1] = Some(gp.hyper().clone());
             constraints.push(gp);

@@ -9,10 +9,13 @@
 //!   constraint's confidence bound on the safe side of the floor, and lies in a
 //!   trust region around the current config whose half-width grows by
 //!   `trust_growth` with each trial that measured safe, and within `safe_reach`
-//!   of a trial that measured safe. Constraint outputs are standardised with at
+//!   of a trial that measured safe and close enough to one that the steepest
+//!   slope seen so far (doubled) cannot cross the floor. Constraint outputs are standardised with at
 //!   least `constraint_min_scale × |target|` (in safe mode at least the floor's
 //!   slack, `(1 - fraction) × |target|`), so a few similar values do not make
-//!   the model overconfident.
+//!   the model overconfident, and their lengthscales are capped at
+//!   `safe_max_lengthscale` (rates pinned at a publish rate form plateaus that
+//!   otherwise teach the model long lengthscales and tiny uncertainty).
 //! - **Warm start** ([`Optimizer::with_prior_observations`]): trials from a
 //!   similar context join the models' data (not the budget, and never the
 //!   reported best, which must be measured here); the best feasible prior
@@ -39,8 +42,44 @@ use crate::error::{Error, Result};
 use crate::gp::{FitOptions, Hyper};
 pub use crate::models::SafetyFloor;
 use crate::models::{FitPlan, Models, Score};
-use crate::problem::{Observation, Problem};
+use crate::problem::{Observation, Problem, Sense};
 use crate::rng::Rng;
+
+/// Safe mode's second guard besides the models' confidence bounds: a config
+/// must lie within `reach` (L∞, unit cube) of a trial that measured safe and,
+/// for every constraint, close enough to some such trial that even the
+/// steepest slope seen so far (doubled) could not take it below the floor.
+#[derive(Debug, Default)]
+struct SafeRegion {
+    active: bool,
+    reach: f64,
+    /// Safe trials (unit cube) with each constraint's margin above its floor.
+    points: Vec<(Vec<f64>, Vec<f64>)>,
+    slopes: Vec<f64>,
+}
+
+impl SafeRegion {
+    fn allows(&self, u: &[f64]) -> bool {
+        if !self.active {
+            return true;
+        }
+        let dist = |p: &[f64]| {
+            p.iter()
+                .zip(u)
+                .map(|(a, b)| (a - b).abs())
+                .fold(0.0, f64::max)
+        };
+        let near = self
+            .points
+            .iter()
+            .any(|(p, _)| dist(p) <= self.reach + 1e-12);
+        near && self
+            .slopes
+            .iter()
+            .enumerate()
+            .all(|(j, &l)| self.points.iter().any(|(p, m)| m[j] >= l * dist(p)))
+    }
+}
 
 /// Tuning knobs of the optimizer itself.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -75,6 +114,10 @@ pub struct Settings {
     /// Safe mode: proposals also stay within this L∞ distance (unit cube) of a
     /// trial that measured safe, so the models extrapolate only a short way.
     pub safe_reach: f64,
+    /// Safe mode: cap on the constraint models' lengthscales (unit cube), so
+    /// plateaus in the data (a rate pinned at its publish rate) do not make the
+    /// model confident about configs it has not seen.
+    pub safe_max_lengthscale: f64,
 }
 
 impl Default for Settings {
@@ -90,11 +133,12 @@ impl Default for Settings {
             candidates: 1000,
             refine_steps: 25,
             fit: FitOptions::default(),
-            full_refit_every: 5,
+            full_refit_every: 10,
             constraint_min_scale: 0.05,
             trust_initial: 0.1,
             trust_growth: 1.1,
             safe_reach: 0.15,
+            safe_max_lengthscale: 0.3,
         }
     }
 }
@@ -324,32 +368,62 @@ impl Optimizer {
             .count()
     }
 
-    /// Unit-cube points of trials that measured on the safe side of every floor.
-    fn safe_points(&self) -> Vec<Vec<f64>> {
-        let Some(s) = &self.settings.safety else {
-            return Vec::new();
+    /// Safe mode: the region proposals may come from, built from the trials.
+    fn safe_region(&self) -> SafeRegion {
+        let Some(floor) = &self.settings.safety else {
+            return SafeRegion::default();
         };
-        self.observations
+        let cons = &self.problem.constraints;
+        let pts: Vec<(Vec<f64>, &Observation)> = self
+            .observations
             .iter()
-            .filter(|o| {
-                self.problem
-                    .constraints
+            .filter(|o| !o.censored)
+            .map(|o| (self.problem.space.to_unit(&o.x), o))
+            .collect();
+        // Steepest slope seen per constraint (value change per unit L∞ distance), doubled.
+        let slopes = (0..cons.len())
+            .map(|j| {
+                let mut l: f64 = 0.0;
+                for (a, (ua, oa)) in pts.iter().enumerate() {
+                    for (ub, ob) in &pts[..a] {
+                        let d = ua
+                            .iter()
+                            .zip(ub)
+                            .map(|(x, y)| (x - y).abs())
+                            .fold(0.0, f64::max);
+                        if d > 1e-9 {
+                            l = l.max((oa.constraints[j] - ob.constraints[j]).abs() / d);
+                        }
+                    }
+                }
+                2.0 * l
+            })
+            .collect();
+        let points = pts
+            .iter()
+            .filter(|(_, o)| {
+                cons.iter()
+                    .zip(&o.constraints)
+                    .all(|(c, &v)| floor.holds(c, v))
+            })
+            .map(|(u, o)| {
+                let margins = cons
                     .iter()
                     .zip(&o.constraints)
-                    .all(|(c, &v)| s.holds(c, v))
+                    .map(|(c, &v)| match c.sense {
+                        Sense::AtLeast => v - floor.floor(c),
+                        Sense::AtMost => floor.floor(c) - v,
+                    })
+                    .collect();
+                (u.clone(), margins)
             })
-            .map(|o| self.problem.space.to_unit(&o.x))
-            .collect()
-    }
-
-    /// Safe mode: is `u` within reach of a safely measured trial?
-    fn in_reach(&self, u: &[f64], safe_points: &[Vec<f64>]) -> bool {
-        self.settings.safety.is_none()
-            || safe_points.iter().any(|p| {
-                p.iter()
-                    .zip(u)
-                    .all(|(a, b)| (a - b).abs() <= self.settings.safe_reach + 1e-12)
-            })
+            .collect();
+        SafeRegion {
+            active: true,
+            reach: self.settings.safe_reach,
+            points,
+            slopes,
+        }
     }
 
     /// Half-width of the region proposals may come from (1 = whole cube).
@@ -380,6 +454,11 @@ impl Optimizer {
                     .max(1.0 - f.fraction_of_target),
                 None => self.settings.constraint_min_scale,
             },
+            constraint_max_lengthscale: self
+                .settings
+                .safety
+                .as_ref()
+                .map(|_| self.settings.safe_max_lengthscale),
         };
         Models::fit(
             &self.problem,
@@ -428,7 +507,7 @@ impl Optimizer {
             let safe = match (&self.settings.safety, &models) {
                 (Some(s), Some(m)) => {
                     m.score(&self.problem, std::slice::from_ref(&u), None, Some(s))[0].safe
-                        && self.in_reach(&u, &self.safe_points())
+                        && self.safe_region().allows(&u)
                 }
                 _ => true,
             };
@@ -493,11 +572,12 @@ impl Optimizer {
         let lo: Vec<f64> = centre.iter().map(|c| (c - half).max(0.0)).collect();
         let hi: Vec<f64> = centre.iter().map(|c| (c + half).min(1.0)).collect();
         let mut out = Vec::with_capacity(self.settings.candidates + 200);
-        let safe_points = self.safe_points();
+        let region = self.safe_region();
         for _ in 0..self.settings.candidates {
-            let u: Vec<f64> = if self.settings.safety.is_some() && !safe_points.is_empty() {
+            let u: Vec<f64> = if region.active && !region.points.is_empty() {
                 // Safe mode: uniform in the reach box of a random safe trial, inside the trust region.
-                let a = &safe_points[(self.rng.next_u64() % safe_points.len() as u64) as usize];
+                let a =
+                    &region.points[(self.rng.next_u64() % region.points.len() as u64) as usize].0;
                 let r = self.settings.safe_reach;
                 (0..dim)
                     .map(|k| {
@@ -540,7 +620,7 @@ impl Optimizer {
                 out.push(self.problem.space.snap_unit(&u));
             }
         }
-        out.retain(|u| self.in_reach(u, &safe_points));
+        out.retain(|u| region.allows(u));
         out
     }
 
@@ -558,7 +638,7 @@ impl Optimizer {
         let (mut x, mut s) = (start, score);
         let mut step = 0.05 * half.max(0.1);
         let safety = self.settings.safety.clone();
-        let safe_points = self.safe_points();
+        let region = self.safe_region();
         for _ in 0..self.settings.refine_steps {
             let batch: Vec<Vec<f64>> = (0..4)
                 .map(|_| {
@@ -573,11 +653,7 @@ impl Optimizer {
             let scores = models.score(&self.problem, &batch, incumbent, safety.as_ref());
             let mut improved = false;
             for (u, sc) in batch.into_iter().zip(scores) {
-                if sc.safe
-                    && sc.log_acq > s.log_acq
-                    && !self.measured(&u)
-                    && self.in_reach(&u, &safe_points)
-                {
+                if sc.safe && sc.log_acq > s.log_acq && !self.measured(&u) && region.allows(&u) {
                     x = u;
                     s = sc;
                     improved = true;

@@ -153,7 +153,7 @@ fn safe_exploration_never_proposes_below_the_floor_on_the_robot() {
             safety: Some(floor.clone()),
             ..small(seed, 25)
         };
-        let trust = settings.trust_initial;
+        let (trust, growth) = (settings.trust_initial, settings.trust_growth);
         let size = settings.initial_design_size;
         let mut opt = Optimizer::new(p.problem.clone(), settings, &p.current).unwrap();
         let xs = drive(&mut opt, &p, 26);
@@ -175,13 +175,15 @@ fn safe_exploration_never_proposes_below_the_floor_on_the_robot() {
                 );
             }
             if i < size {
-                // The first trials stay in the initial trust region around the current config.
+                // The first trials stay in the trust region around the current config,
+                // which grows by `growth` per safe trial (at most i before trial i).
+                let half = trust * growth.powi(i.saturating_sub(1) as i32);
                 let u = p.problem.space.to_unit(x);
                 assert!(
                     u.iter()
                         .zip(&cur)
-                        .all(|(a, b)| (a - b).abs() <= trust + 1e-9),
-                    "trial {i} left the trust region"
+                        .all(|(a, b)| (a - b).abs() <= half + 1e-9),
+                    "trial {i} left the trust region of half-width {half}"
                 );
             }
         }
