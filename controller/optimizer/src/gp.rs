@@ -73,6 +73,9 @@ pub struct FitOptions {
     /// Upper bound on every lengthscale (unit-cube units); safe exploration
     /// caps it so the constraint models cannot extrapolate far with confidence.
     pub max_lengthscale: Option<f64>,
+    /// Lower bound on the signal variance (standardised units); safe
+    /// exploration sets 1 so flat data cannot shrink the prior uncertainty.
+    pub min_signal_var: Option<f64>,
     /// Smallest output scale used for standardisation (metric units), so that a
     /// handful of identical values do not make the model overconfident.
     pub min_scale: f64,
@@ -83,8 +86,9 @@ impl Default for FitOptions {
         Self {
             random_starts: 4,
             local_runs: 2,
-            max_iter: 30,
+            max_iter: 20,
             max_lengthscale: None,
+            min_signal_var: None,
             min_scale: 1e-9,
         }
     }
@@ -199,7 +203,12 @@ fn neg_log_posterior(h: &[f64], pairs: &Pairs, z: &DVector<f64>) -> Option<(f64,
         .map(|v| v.ln())
         .sum::<f64>();
     let nll = 0.5 * z.dot(&alpha) + logdet + 0.5 * n as f64 * (2.0 * std::f64::consts::PI).ln();
-    let kinv = chol.inverse();
+    // K^-1 = L^-T L^-1: one triangular solve and one matrix product.
+    let linv = chol
+        .l_dirty()
+        .solve_lower_triangular(&DMatrix::identity(n, n))
+        .unwrap_or_else(|| DMatrix::identity(n, n));
+    let kinv = linv.tr_mul(&linv);
     // W = alpha alpha^T - K^-1; d lml / d theta = 0.5 tr(W dK)
     let mut grad = vec![0.0; dim + 2];
     let mut tr_w_kf = 0.0;
@@ -233,13 +242,16 @@ fn neg_log_posterior(h: &[f64], pairs: &Pairs, z: &DVector<f64>) -> Option<(f64,
     f.is_finite().then_some((f, grad))
 }
 
-fn bounds(dim: usize, max_ls: Option<f64>) -> (Vec<f64>, Vec<f64>) {
+fn bounds(dim: usize, max_ls: Option<f64>, min_sf2: Option<f64>) -> (Vec<f64>, Vec<f64>) {
+    let sf2_lo = min_sf2.map_or(LOG_SF2_BOUNDS.0, |m| {
+        m.ln().clamp(LOG_SF2_BOUNDS.0, LOG_SF2_BOUNDS.1 - 0.1)
+    });
     let ls_hi = max_ls.map_or(LOG_LS_BOUNDS.1, |m| {
         m.ln().clamp(LOG_LS_BOUNDS.0 + 0.1, LOG_LS_BOUNDS.1)
     });
     let mut lo = vec![LOG_LS_BOUNDS.0; dim];
     let mut hi = vec![ls_hi; dim];
-    lo.extend([LOG_SF2_BOUNDS.0, LOG_SN2_BOUNDS.0]);
+    lo.extend([sf2_lo, LOG_SN2_BOUNDS.0]);
     hi.extend([LOG_SF2_BOUNDS.1, LOG_SN2_BOUNDS.1]);
     (lo, hi)
 }
@@ -267,6 +279,9 @@ fn lbfgs(
     let mut mem: Vec<(Vec<f64>, Vec<f64>, f64)> = Vec::new();
     let dot = |a: &[f64], b: &[f64]| a.iter().zip(b).map(|(x, y)| x * y).sum::<f64>();
     for it in 0..max_iter {
+        if g.iter().all(|v| v.abs() < 1e-4) {
+            break; // stationary (e.g. a warm start at the previous optimum)
+        }
         // Two-loop recursion for d = -H g.
         let mut q = g.clone();
         let mut alphas = Vec::with_capacity(mem.len());
@@ -293,11 +308,18 @@ fn lbfgs(
         let mut d: Vec<f64> = q.iter().map(|v| -v).collect();
         if dot(&d, &g) >= 0.0 {
             mem.clear();
-            d = g.iter().map(|v| -v / dot(&g, &g).sqrt().max(1.0)).collect();
+            d = g.iter().map(|v| -v).collect();
+        }
+        if mem.is_empty() {
+            // Without curvature information, take at most a 0.3 step in log space.
+            let norm = dot(&d, &d).sqrt();
+            if norm > 0.3 {
+                d.iter_mut().for_each(|v| *v *= 0.3 / norm);
+            }
         }
         let mut t = 1.0;
         let mut accepted = None;
-        for _ in 0..20 {
+        for _ in 0..12 {
             let mut xn: Vec<f64> = x.iter().zip(&d).map(|(a, b)| a + t * b).collect();
             clamp(&mut xn);
             let step: Vec<f64> = xn.iter().zip(&x).map(|(a, b)| a - b).collect();
@@ -344,7 +366,7 @@ impl Gp {
         let (_, _, z) = standardise(y, opts.min_scale);
         let z = DVector::from_vec(z);
         let pairs = Pairs::new(x);
-        let (lo, hi) = bounds(dim, opts.max_lengthscale);
+        let (lo, hi) = bounds(dim, opts.max_lengthscale, opts.min_signal_var);
         let mut starts = Vec::new();
         if let Some(w) = warm.filter(|w| w.log_ls.len() == dim) {
             starts.push(w.to_vec());

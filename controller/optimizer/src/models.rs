@@ -69,7 +69,8 @@ pub(crate) struct FitPlan<'a> {
     pub full: bool,
     /// Minimum standardisation scale for constraints as a fraction of `Constraint::scale`.
     pub constraint_min_scale: f64,
-    /// Lengthscale cap for the constraint models (safe exploration).
+    /// Lengthscale cap for the constraint models (safe exploration, which also
+    /// floors their signal variance at the standardisation scale).
     pub constraint_max_lengthscale: Option<f64>,
 }
 
@@ -90,6 +91,7 @@ impl Models {
             // Between full refits: screen the previous optimum and the prior centre, one L-BFGS run.
             opts.random_starts = 0;
             opts.local_runs = 1;
+            opts.max_iter = opts.max_iter.min(12);
         }
         // Objective: complete trials only (a censored trial's objective is unknown).
         let (ux, y): (Vec<Vec<f64>>, Vec<f64>) = u
@@ -112,6 +114,9 @@ impl Models {
             let mut copts = opts.clone();
             copts.min_scale = plan.constraint_min_scale * c.scale();
             copts.max_lengthscale = plan.constraint_max_lengthscale;
+            if plan.constraint_max_lengthscale.is_some() {
+                copts.min_signal_var = Some(1.0);
+            }
             let gp = Gp::fit(u, &y, &copts, hypers[j + 1].as_ref(), rng)?;
             hypers[j + 1] = Some(gp.hyper().clone());
             constraints.push(gp);

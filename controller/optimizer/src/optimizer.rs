@@ -13,7 +13,8 @@
 //!   slope seen so far (doubled) cannot cross the floor. Constraint outputs are standardised with at
 //!   least `constraint_min_scale × |target|` (in safe mode at least the floor's
 //!   slack, `(1 - fraction) × |target|`), so a few similar values do not make
-//!   the model overconfident, and their lengthscales are capped at
+//!   the model overconfident; their signal variance is floored at that scale
+//!   and their lengthscales are capped at
 //!   `safe_max_lengthscale` (rates pinned at a publish rate form plateaus that
 //!   otherwise teach the model long lengthscales and tiny uncertainty).
 //! - **Warm start** ([`Optimizer::with_prior_observations`]): trials from a
