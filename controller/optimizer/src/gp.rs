@@ -85,7 +85,7 @@ impl Default for FitOptions {
     fn default() -> Self {
         Self {
             random_starts: 4,
-            local_runs: 2,
+            local_runs: 1,
             max_iter: 20,
             max_lengthscale: None,
             min_signal_var: None,

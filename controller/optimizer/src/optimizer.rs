@@ -10,7 +10,7 @@
 //!   trust region around the current config whose half-width grows by
 //!   `trust_growth` with each trial that measured safe, and within `safe_reach`
 //!   of a trial that measured safe and close enough to one that the steepest
-//!   slope seen so far (doubled) cannot cross the floor. Constraint outputs are standardised with at
+//!   slope seen so far (tripled) cannot cross the floor. Constraint outputs are standardised with at
 //!   least `constraint_min_scale × |target|` (in safe mode at least the floor's
 //!   slack, `(1 - fraction) × |target|`), so a few similar values do not make
 //!   the model overconfident; their signal variance is floored at that scale
@@ -46,10 +46,13 @@ use crate::models::{FitPlan, Models, Score};
 use crate::problem::{Observation, Problem, Sense};
 use crate::rng::Rng;
 
+/// Safety factor on the steepest slope seen (safe mode).
+const SLOPE_FACTOR: f64 = 3.0;
+
 /// Safe mode's second guard besides the models' confidence bounds: a config
 /// must lie within `reach` (L∞, unit cube) of a trial that measured safe and,
 /// for every constraint, close enough to some such trial that even the
-/// steepest slope seen so far (doubled) could not take it below the floor.
+/// steepest slope seen so far (tripled) could not take it below the floor.
 #[derive(Debug, Default)]
 struct SafeRegion {
     active: bool,
@@ -60,6 +63,24 @@ struct SafeRegion {
 }
 
 impl SafeRegion {
+    /// L∞ radius around safe trial `p` that the slopes and `reach` allow.
+    fn radius(&self, p: &[f64]) -> f64 {
+        let margins = self
+            .points
+            .iter()
+            .find(|(q, _)| q.as_slice() == p)
+            .map(|(_, m)| m.as_slice());
+        let mut r = self.reach;
+        if let Some(m) = margins {
+            for (mj, &l) in m.iter().zip(&self.slopes) {
+                if l > 0.0 {
+                    r = r.min(mj / l);
+                }
+            }
+        }
+        r.max(0.0)
+    }
+
     fn allows(&self, u: &[f64]) -> bool {
         if !self.active {
             return true;
@@ -381,7 +402,7 @@ impl Optimizer {
             .filter(|o| !o.censored)
             .map(|o| (self.problem.space.to_unit(&o.x), o))
             .collect();
-        // Steepest slope seen per constraint (value change per unit L∞ distance), doubled.
+        // Steepest slope seen per constraint (value change per unit L∞ distance), tripled.
         let slopes = (0..cons.len())
             .map(|j| {
                 let mut l: f64 = 0.0;
@@ -397,7 +418,7 @@ impl Optimizer {
                         }
                     }
                 }
-                2.0 * l
+                SLOPE_FACTOR * l
             })
             .collect();
         let points = pts
@@ -576,10 +597,11 @@ impl Optimizer {
         let region = self.safe_region();
         for _ in 0..self.settings.candidates {
             let u: Vec<f64> = if region.active && !region.points.is_empty() {
-                // Safe mode: uniform in the reach box of a random safe trial, inside the trust region.
-                let a =
-                    &region.points[(self.rng.next_u64() % region.points.len() as u64) as usize].0;
-                let r = self.settings.safe_reach;
+                // Safe mode: uniform in the box of a random safe trial whose half-width
+                // is what the safe region allows there, inside the trust region.
+                let (a, _) =
+                    &region.points[(self.rng.next_u64() % region.points.len() as u64) as usize];
+                let r = region.radius(a);
                 (0..dim)
                     .map(|k| {
                         self.rng
@@ -611,13 +633,44 @@ impl Optimizer {
             .map(|o| self.problem.space.to_unit(&o.x))
             .collect();
         for a in &anchors {
+            let r = if region.active {
+                region.radius(a)
+            } else {
+                half.max(0.1)
+            };
             for j in 0..50 {
-                let sigma = if j % 2 == 0 { 0.02 } else { 0.1 } * half.max(0.1);
+                let sigma = if j % 2 == 0 { 0.1 } else { 0.5 } * r;
                 let u: Vec<f64> = a
                     .iter()
                     .enumerate()
                     .map(|(k, v)| (v + sigma * self.rng.normal()).clamp(lo[k], hi[k]))
                     .collect();
+                out.push(self.problem.space.snap_unit(&u));
+            }
+        }
+        // Around the best trial, also move only a few coordinates at a time
+        // (in many dimensions, small subspace moves find improvements far more often).
+        if let Some(a) = anchors.first() {
+            let r = if region.active {
+                region.radius(a)
+            } else {
+                half.max(0.1)
+            };
+            let p = (3.0 / dim as f64).min(1.0);
+            for j in 0..200 {
+                let sigma = if j % 2 == 0 { 0.1 } else { 0.4 } * r;
+                let mut u = a.clone();
+                let mut moved = false;
+                for (k, v) in u.iter_mut().enumerate() {
+                    if self.rng.uniform() < p {
+                        *v = (*v + sigma * self.rng.normal()).clamp(lo[k], hi[k]);
+                        moved = true;
+                    }
+                }
+                if !moved {
+                    let k = (self.rng.next_u64() % dim as u64) as usize;
+                    u[k] = (u[k] + sigma * self.rng.normal()).clamp(lo[k], hi[k]);
+                }
                 out.push(self.problem.space.snap_unit(&u));
             }
         }

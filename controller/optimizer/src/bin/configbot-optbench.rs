@@ -9,7 +9,8 @@
 //!   `--skip-compare` runs only the timing, UNSAT and safety parts.
 //! - `--problem P --seed S --budget N [--method bo|random|sobol] [--safe] --json`:
 //!   one run, printing its trace as JSON (for other tools).
-//! - `--search-best P`: large random search + coordinate refinement, to
+//! - `--search-best P [--samples N] [--bo-runs K]`: large random search (plus
+//!   the best configs of K optimizer runs) + coordinate refinement, to
 //!   establish a problem's best-known feasible value.
 
 use std::time::Instant;
@@ -144,8 +145,9 @@ fn run(p: &TestProblem, method: Method, seed: u64, budget: usize, safe: bool) ->
     Ok(trace)
 }
 
-/// Random search + coordinate refinement for a best-known value.
-fn search_best(p: &TestProblem, samples: usize) -> (f64, Vec<f64>) {
+/// Random search + coordinate refinement for a best-known value; the best
+/// configs of `bo_runs` optimizer runs (budget 200, seeds 1000..) join the refinement starts.
+fn search_best(p: &TestProblem, samples: usize, bo_runs: u64) -> Result<(f64, Vec<f64>)> {
     let dim = p.problem.space.dim();
     let mut rng = Rng::seed_from_u64(12345);
     let mut tops: Vec<(f64, Vec<f64>)> = Vec::new();
@@ -162,6 +164,19 @@ fn search_best(p: &TestProblem, samples: usize) -> (f64, Vec<f64>) {
     }
     tops.sort_by(|a, b| b.0.total_cmp(&a.0));
     tops.truncate(20);
+    for seed in 0..bo_runs {
+        let mut opt = Optimizer::new(
+            p.problem.clone(),
+            bo_settings(1000 + seed, 200, false),
+            &p.current,
+        )?;
+        while let Proposal::Try(x) = opt.ask()? {
+            opt.tell(p.evaluate(&x))?;
+        }
+        if let Outcome::Best { best, .. } = opt.outcome() {
+            tops.push((best.value, p.problem.space.to_unit(&best.x)));
+        }
+    }
     let mut best = (f64::NEG_INFINITY, Vec::new());
     for (mut v, mut u) in tops {
         let mut step = 0.05;
@@ -188,7 +203,7 @@ fn search_best(p: &TestProblem, samples: usize) -> (f64, Vec<f64>) {
             best = (v, p.problem.space.from_unit(&u));
         }
     }
-    best
+    Ok(best)
 }
 
 fn arg(args: &[String], name: &str) -> Option<String> {
@@ -208,7 +223,8 @@ fn main() -> Result<()> {
     if let Some(name) = arg(&args, "--search-best") {
         let p = load(&name)?;
         let samples = arg(&args, "--samples").map_or(Ok(200_000), |s| s.parse())?;
-        let (v, x) = search_best(&p, samples);
+        let bo_runs = arg(&args, "--bo-runs").map_or(Ok(0), |s| s.parse())?;
+        let (v, x) = search_best(&p, samples, bo_runs)?;
         println!(
             "{name}: best feasible scalar {v:.6} at {x:?} (stated best-known {:?})",
             p.best_known
@@ -394,7 +410,8 @@ fn full(args: &[String]) -> Result<()> {
         let bo_budget = match (quick, p.problem.space.dim()) {
             (true, _) => 30,
             (false, d) if d <= 2 => 60,
-            (false, _) => 100,
+            (false, d) if d <= 4 => 100,
+            (false, _) => 200,
         };
         let per = |m: Method, budget: usize| -> Result<Vec<Trace>> {
             (0..seeds).map(|s| run(&p, m, s, budget, false)).collect()
