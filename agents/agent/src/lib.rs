@@ -12,6 +12,7 @@ pub mod api;
 pub mod cli;
 pub mod error;
 pub mod events;
+pub mod measure;
 pub mod metrics;
 pub mod policy;
 pub mod procfs;

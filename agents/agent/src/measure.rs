@@ -1,0 +1,86 @@
+//! What the controller asks the node to measure, and what it gets back: a
+//! window of live time split into sub-windows (1 s by default), one value per
+//! sub-window for each probe. The same types are the body of `POST
+//! /v1/measure` and the arguments of the in-process call, so the tuning loop
+//! measures an embedded and a remote robot the same way.
+
+use serde::{Deserialize, Serialize};
+
+/// A measurement of `probes` over `duration_ms`, split into sub-windows.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(rename_all = "camelCase")]
+pub struct MeasureRequest {
+    pub probes: Vec<Probe>,
+    pub duration_ms: u64,
+    #[serde(default = "default_sub_window_ms")]
+    pub sub_window_ms: u64,
+}
+
+fn default_sub_window_ms() -> u64 {
+    1000
+}
+
+/// One quantity to measure.
+#[derive(Debug, Clone, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "camelCase")]
+pub enum Probe {
+    /// Messages per second on `topic`; with `subscriber`, the rate delivered
+    /// to that node (after its adaptor, when the edge is adapted).
+    #[serde(rename_all = "camelCase")]
+    TopicRate {
+        topic: String,
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        subscriber: Option<String>,
+    },
+    /// CPUs used by the node's cgroup.
+    #[serde(rename_all = "camelCase")]
+    CpuUsage { node: String },
+}
+
+/// The result of a [`MeasureRequest`].
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(rename_all = "camelCase")]
+pub struct MeasureReport {
+    pub started_unix_ms: u64,
+    pub duration_ms: u64,
+    pub sub_window_ms: u64,
+    /// One series per probe, in the request's order.
+    pub series: Vec<ProbeSeries>,
+}
+
+/// The values of one probe.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(rename_all = "camelCase")]
+pub struct ProbeSeries {
+    pub probe: Probe,
+    /// One value per sub-window (Hz or CPUs).
+    pub values: Vec<f64>,
+    /// The value over the whole window.
+    pub mean: f64,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn probes_are_tagged_camel_case() {
+        let p = Probe::TopicRate {
+            topic: "/cmd_vel".into(),
+            subscriber: None,
+        };
+        let j = serde_json::to_string(&p).unwrap();
+        assert_eq!(j, r#"{"kind":"topicRate","topic":"/cmd_vel"}"#);
+        let back: MeasureRequest = serde_json::from_str(
+            r#"{"probes":[{"kind":"cpuUsage","node":"/nav"}],"durationMs":3000}"#,
+        )
+        .unwrap();
+        assert_eq!(back.sub_window_ms, 1000);
+        assert_eq!(
+            back.probes[0],
+            Probe::CpuUsage {
+                node: "/nav".into()
+            }
+        );
+    }
+}
