@@ -8,6 +8,7 @@ pub mod api;
 pub mod client;
 pub mod metrics;
 pub mod reconcile;
+pub mod report;
 pub mod server;
 pub mod store;
 pub mod table;
