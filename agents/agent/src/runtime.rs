@@ -34,12 +34,15 @@ use tokio::sync::broadcast;
 use tokio::task::JoinHandle;
 
 pub use self::apply::{Plan, plan};
-pub use self::measure::{boundaries, series};
+pub use self::measure::{Reading, boundaries, series};
 use crate::agent::stack::StackDiff;
 use crate::agent::{Agent, NodeStatus};
 use crate::error::{Error, Result};
 use crate::events::{AgentEvent, ProcEvent, ProcEventKind, RuntimeEvent};
 use crate::spec::{AgentSettings, NodeSource, StackSpec};
+
+/// Shortest gap between two graph wake-ups caused by process events.
+pub const WAKE_GAP: Duration = Duration::from_millis(50);
 
 /// The ROS 1 part of the runtime.
 #[derive(Debug, Clone)]
@@ -78,6 +81,9 @@ struct Inner {
     monitor: Mutex<Option<MonitorHandle>>,
     monitor_status: String,
     tasks: Mutex<Vec<JoinHandle<()>>>,
+    /// Process events ask for a graph refresh here; one task passes them on
+    /// to the data plane at most every [`WAKE_GAP`].
+    wake: tokio::sync::Notify,
     /// Serializes set_stack and apply.
     ops: tokio::sync::Mutex<()>,
     /// Topics whose meters this runtime started.
@@ -190,7 +196,16 @@ impl NodeRuntime {
         }
         if let Some(dp) = rt.inner.dp.clone() {
             let me = rt.clone();
-            rt.spawn(async move { me.graph_loop(dp).await });
+            let d = dp.clone();
+            rt.spawn(async move { me.graph_loop(d).await });
+            let me = rt.clone();
+            rt.spawn(async move {
+                loop {
+                    me.inner.wake.notified().await;
+                    dp.wake();
+                    tokio::time::sleep(WAKE_GAP).await;
+                }
+            });
         }
         Ok(rt)
     }
@@ -233,6 +248,7 @@ impl NodeRuntime {
                 monitor: Mutex::new(monitor),
                 monitor_status,
                 tasks: Mutex::new(Vec::new()),
+                wake: tokio::sync::Notify::new(),
                 ops: tokio::sync::Mutex::new(()),
                 metered: Mutex::new(BTreeSet::new()),
                 registry,
@@ -297,9 +313,9 @@ impl NodeRuntime {
             ppid: ev.ppid,
             comm: ev.comm.clone(),
         });
-        if let Some(dp) = &self.inner.dp {
-            dp.wake();
-        }
+        // Every exec/exit wakes the graph monitor (coalesced: a busy host
+        // execs hundreds of processes a second).
+        self.inner.wake.notify_one();
         let seen = unix_ms();
         self.emit(match kind {
             ProcEventKind::Exec => {

@@ -486,3 +486,78 @@ spec:
     );
     server.abort();
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_binary_runs_the_full_runtime_from_a_robot_stack_yaml() {
+    if !ros_available() {
+        return;
+    }
+    let mut env = RtEnv::new();
+    let yaml = format!(
+        r#"apiVersion: configbot.dev/v1alpha1
+kind: RobotStack
+metadata: {{name: bot}}
+spec:
+  apps:
+    - name: nav
+      core: true
+      nodes:
+        - name: /odom
+          run:
+            command: /usr/bin/python3
+            args: ["{talker}", "odom", "/odom", "10"]
+            env: {env}
+"#,
+        talker = common::rt::script("talker.py"),
+        env = env.ros_env_yaml(),
+    );
+    let stack = env.path("stack.yaml");
+    std::fs::write(&stack, yaml).unwrap();
+    let sock = env.path("agent.sock");
+    let mut cmd = std::process::Command::new(env!("CARGO_BIN_EXE_configbot-agent"));
+    cmd.arg("--stack")
+        .arg(&stack)
+        .args(["--cgroup-root", &env.root])
+        .arg("--state-file")
+        .arg(env.path("state.json"))
+        .arg("--log-dir")
+        .arg(env.path("logs"))
+        .arg("--socket")
+        .arg(&sock)
+        .args([
+            "--ros-master-uri",
+            &env.master_uri,
+            "--ros-bind-host",
+            "127.0.0.1",
+        ])
+        .arg("--ros-db")
+        .arg(env.path("ros1.db"))
+        .args(["--monitor", "auto"]);
+    env.procs.push(common::rt::Proc::spawn(cmd));
+    let client = configbot_agent::client::AgentClient::unix(&sock);
+    let end = Instant::now() + T;
+    let odom_pid = loop {
+        assert!(
+            Instant::now() < end,
+            "/odom never registered with the agent's master"
+        );
+        if let Ok(g) = client.graph().await
+            && let Some(pid) = g.nodes.get("/odom").and_then(|n| n.pid)
+        {
+            break pid;
+        }
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    };
+    let inv = client.inventory().await.unwrap();
+    assert!(inv[0].pids.contains(&odom_pid), "{inv:?}");
+    // Real ROS tools see the agent as the master.
+    let out = env
+        .ros_command("/usr/bin/rostopic")
+        .args(["list"])
+        .output()
+        .unwrap();
+    assert!(
+        String::from_utf8_lossy(&out.stdout).contains("/odom"),
+        "{out:?}"
+    );
+}

@@ -2,9 +2,12 @@
 //! messages an adaptor forwarded to its subscriber, CPU nanoseconds of a node
 //! cgroup) at every sub-window boundary and turns the differences into
 //! honest per-sub-window values: count in the sub-window ÷ its measured
-//! length. A counter that does not exist yet (topic not in the graph) counts
-//! nothing: a starved topic is 0 Hz, not an error. The arithmetic is pure
-//! ([`series`]); the reading is in [`NodeRuntime::measure`].
+//! length. A counter that does not exist (topic not in the graph, subscriber
+//! not subscribed) counts nothing: a starved topic is 0 Hz, not an error.
+//! Each reading names its source (topic meter or adaptor), so a sub-window in
+//! which the source changed counts nothing rather than mixing two counters.
+//! The arithmetic is pure ([`series`]); the reading is in
+//! [`NodeRuntime::measure`].
 
 use std::time::{Duration, Instant};
 
@@ -43,18 +46,27 @@ impl Counter {
     }
 }
 
+/// One counter reading: which source (e.g. topic meter = 0, adaptor = 1)
+/// and its value.
+pub type Reading = Option<(u8, u64)>;
+
 /// Values per sub-window and over the whole window from counter readings
 /// taken at `times` (seconds from the start; `times[0]` is the start).
-/// `None` is a counter that could not be read at that moment; a counter
-/// first seen inside the window counts from zero, one that disappears counts
-/// nothing, and a counter that went backwards (recreated) counts its new
-/// value. Pure.
-pub fn series(times: &[f64], readings: &[Option<u64>], scale: f64) -> (Vec<f64>, f64) {
-    let delta = |a: Option<u64>, b: Option<u64>| -> u64 {
+/// `None` is a counter that could not be read at that moment. A sub-window
+/// counts `b - a` when both ends read the same source; nothing when either
+/// end is missing or the source changed; and the new value when the counter
+/// went backwards (recreated, e.g. a reconnected adaptor). Pure.
+pub fn series(times: &[f64], readings: &[Reading], scale: f64) -> (Vec<f64>, f64) {
+    let delta = |a: Reading, b: Reading| -> u64 {
         match (a, b) {
-            (Some(a), Some(b)) if b >= a => b - a,
-            (Some(_) | None, Some(b)) => b,
-            (_, None) => 0,
+            (Some((sa, a)), Some((sb, b))) if sa == sb => {
+                if b >= a {
+                    b - a
+                } else {
+                    b
+                }
+            }
+            _ => 0,
         }
     };
     let mut values = Vec::with_capacity(times.len().saturating_sub(1));
@@ -138,7 +150,7 @@ impl NodeRuntime {
         let started_unix_ms = super::unix_ms();
         let t0 = Instant::now();
         let mut times = Vec::with_capacity(bounds.len());
-        let mut readings: Vec<Vec<Option<u64>>> = vec![Vec::new(); counters.len()];
+        let mut readings: Vec<Vec<Reading>> = vec![Vec::new(); counters.len()];
         for b in &bounds {
             tokio::time::sleep_until((t0 + Duration::from_millis(*b)).into()).await;
             let now = t0.elapsed().as_secs_f64();
@@ -192,10 +204,19 @@ impl NodeRuntime {
         }
     }
 
-    fn read(&self, c: &Counter) -> Option<u64> {
+    fn read(&self, c: &Counter) -> Reading {
         match c {
-            Counter::Cpu(n) => self.agent().backend().stats(n).ok().map(|s| s.usage_ns),
-            Counter::Topic(t) => self.data_plane()?.topic_messages(t).ok(),
+            Counter::Cpu(n) => self
+                .agent()
+                .backend()
+                .stats(n)
+                .ok()
+                .map(|s| (SRC_CGROUP, s.usage_ns)),
+            Counter::Topic(t) => self
+                .data_plane()?
+                .topic_messages(t)
+                .ok()
+                .map(|n| (SRC_METER, n)),
             Counter::Delivered(e) => {
                 let dp = self.data_plane()?;
                 delivered(dp.as_ref(), e)
@@ -204,13 +225,30 @@ impl NodeRuntime {
     }
 }
 
+const SRC_CGROUP: u8 = 0;
+const SRC_METER: u8 = 1;
+const SRC_ADAPTOR: u8 = 2;
+
 /// Messages delivered to an edge's subscriber so far: the adaptor's
-/// forwarded counter when the edge is adapted, else the topic's count.
-fn delivered(dp: &dyn DataPlane, e: &EdgeId) -> Option<u64> {
+/// forwarded counter when the edge is adapted; else, while the node
+/// subscribes to the topic, the topic's count (it gets every message);
+/// else nothing.
+fn delivered(dp: &dyn DataPlane, e: &EdgeId) -> Reading {
     if dp.adaptors().contains_key(e) {
-        return dp.adaptor_counters().get(e).map(|c| c.forwarded);
+        return dp
+            .adaptor_counters()
+            .get(e)
+            .map(|c| (SRC_ADAPTOR, c.forwarded));
     }
-    dp.topic_messages(&e.topic).ok()
+    let subscribed = dp
+        .graph()
+        .topics
+        .get(&e.topic)
+        .is_some_and(|t| t.subscribers.contains(&e.subscriber));
+    if !subscribed {
+        return None;
+    }
+    dp.topic_messages(&e.topic).ok().map(|n| (SRC_METER, n))
 }
 
 #[cfg(test)]
@@ -220,7 +258,12 @@ mod tests {
     #[test]
     fn per_window_counts_over_measured_lengths() {
         let times = [0.0, 1.0, 2.0, 3.5];
-        let r = [Some(100), Some(130), Some(160), Some(160)];
+        let r = [
+            Some((1, 100)),
+            Some((1, 130)),
+            Some((1, 160)),
+            Some((1, 160)),
+        ];
         let (v, mean) = series(&times, &r, 1.0);
         assert_eq!(v, vec![30.0, 30.0, 0.0]);
         assert!((mean - 60.0 / 3.5).abs() < 1e-12);
@@ -228,13 +271,22 @@ mod tests {
 
     #[test]
     fn missing_and_reset_counters() {
-        let times = [0.0, 1.0, 2.0, 3.0, 4.0];
-        // appears in window 2, recreated (reset) in window 4, gone at the end
-        let r = [None, None, Some(10), Some(5), None];
+        let times = [0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0];
+        // appears in window 2 (nothing known before: 0), counts 30,
+        // recreated (reset to 5), source switches (adaptor → meter): 0, gone
+        let r = [
+            None,
+            Some((2, 70)),
+            Some((2, 100)),
+            Some((2, 5)),
+            Some((1, 9000)),
+            Some((1, 9030)),
+            None,
+        ];
         let (v, mean) = series(&times, &r, 1.0);
-        assert_eq!(v, vec![0.0, 10.0, 5.0, 0.0]);
-        assert!((mean - 15.0 / 4.0).abs() < 1e-12);
-        let (v, mean) = series(&[0.0, 2.0], &[Some(0), Some(1_000_000_000)], 1e-9);
+        assert_eq!(v, vec![0.0, 30.0, 5.0, 0.0, 30.0, 0.0]);
+        assert!((mean - 65.0 / 6.0).abs() < 1e-12);
+        let (v, mean) = series(&[0.0, 2.0], &[Some((0, 0)), Some((0, 1_000_000_000))], 1e-9);
         assert_eq!((v, mean), (vec![0.5], 0.5));
     }
 
