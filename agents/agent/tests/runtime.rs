@@ -154,6 +154,15 @@ spec:
     };
     assert!((27.0..=33.0).contains(&topic.mean), "topic {topic:?}");
     assert!((8.5..=11.5).contains(&sub.mean), "subscriber {sub:?}");
+    // per sub-window: whole-message counts over ~1 s, so ±3 at 30 Hz
+    assert!(
+        topic.values.iter().all(|v| (24.0..=36.0).contains(v)),
+        "{topic:?}"
+    );
+    assert!(
+        sub.values.iter().all(|v| (7.0..=13.0).contains(v)),
+        "{sub:?}"
+    );
     assert!(
         (7.0..=13.0).contains(&received),
         "listener got {received} Hz"
@@ -314,6 +323,17 @@ async fn exec_event_latency(monitor: Preference, program: &str, args: &[&str]) -
     let _ = child.kill();
     let _ = child.wait();
     let (at, seen) = ev.unwrap_or_else(|_| panic!("no exec event for {pid} within 1 s"));
+    tokio::time::timeout(Duration::from_secs(2), async {
+        loop {
+            match rx.recv().await {
+                Ok(RuntimeEvent::ProcessExit { pid: p, .. }) if p == pid => return,
+                Ok(_) | Err(tokio::sync::broadcast::error::RecvError::Lagged(_)) => {}
+                Err(e) => panic!("{e}"),
+            }
+        }
+    })
+    .await
+    .unwrap_or_else(|_| panic!("no exit event for {pid}"));
     eprintln!(
         "{}: exec at +{} ms, seen +{} ms after spawn start, event after {waited:?}",
         rt.monitor_status(),
@@ -560,4 +580,47 @@ spec:
         String::from_utf8_lossy(&out.stdout).contains("/odom"),
         "{out:?}"
     );
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn client_over_tcp_needs_the_token() {
+    let mut env = common::Env::new();
+    let agent = env
+        .start(common::stack_json(
+            r#"{"apps":[{"name":"a","nodes":[{"name":"/s","run":{"command":"/bin/sleep","args":["300"]}}]}]}"#,
+        ))
+        .await;
+    let rt = configbot_agent::NodeRuntime::with_agent(agent).unwrap();
+    let l = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let addr = l.local_addr().unwrap().to_string();
+    let server = tokio::spawn(configbot_agent::api::serve_tcp(rt, l, "t0ken".into()));
+    let good = configbot_agent::client::AgentClient::tcp(addr.clone(), "t0ken");
+    let inv = good.inventory().await.unwrap();
+    assert_eq!(inv[0].name.as_str(), "/s");
+    assert_eq!(
+        good.graph().await.unwrap(),
+        configbot_dataplane::Graph::default()
+    );
+    let e = good
+        .measure(&MeasureRequest {
+            probes: vec![Probe::TopicRate {
+                topic: "/x".into(),
+                subscriber: None,
+            }],
+            duration_ms: 100,
+            sub_window_ms: 100,
+        })
+        .await
+        .unwrap_err();
+    assert!(e.to_string().contains("ROS data plane"), "{e}");
+    let bad = configbot_agent::client::AgentClient::tcp(addr, "wrong");
+    let e = bad.inventory().await.unwrap_err();
+    assert!(
+        matches!(
+            e,
+            configbot_agent::client::ClientError::Status { status: 401, .. }
+        ),
+        "{e}"
+    );
+    server.abort();
 }
