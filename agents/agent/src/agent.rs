@@ -7,6 +7,7 @@ use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::Instant;
 
 use configbot_cgroups::{CgroupBackend, CgroupConfig, CpuLimit, CpuMax, CpuStats, NodeName};
+use configbot_manifests::AdaptorRate;
 use serde::{Deserialize, Serialize};
 use tokio::sync::{broadcast, watch};
 use tokio::task::JoinHandle;
@@ -18,6 +19,8 @@ use crate::procfs::{Matcher, ProcInfo, is_alive, list_procs, read_proc, with_des
 use crate::spec::{AgentSettings, NodeSource, NodeSpec, StackSpec};
 use crate::state::{self, CommittedConfig, PersistedNode, PersistedState, StartupLimits};
 use crate::supervise::{self, send_signal};
+
+pub mod stack;
 
 /// The agent handle; cheap to clone, shared by the API and supervisors.
 #[derive(Debug, Clone)]
@@ -34,6 +37,7 @@ struct Inner {
     events: broadcast::Sender<AgentEvent>,
     metrics: Metrics,
     background: Mutex<Option<JoinHandle<()>>>,
+    parked: Mutex<Vec<watch::Sender<bool>>>,
 }
 
 #[derive(Debug, Default)]
@@ -57,23 +61,25 @@ struct NodeRt {
     limit: Option<CpuMax>,
 }
 
-/// A config put by the controller: CPU limits now, adaptor rates for the ROS layer.
+/// A config put by the controller: CPU limits, and the adaptor rates per
+/// (topic, subscriber) edge that the runtime hands to the data plane (the
+/// agent core records and persists them).
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 #[serde(rename_all = "camelCase")]
 pub struct ConfigUpdate {
     pub limits: BTreeMap<NodeName, CpuLimit>,
-    /// Topic → rate in Hz; stored and persisted, served by the ROS layer later.
     #[serde(default)]
-    pub adaptor_rates: BTreeMap<String, f64>,
+    pub adaptor_rates: Vec<AdaptorRate>,
 }
 
 /// One node in the inventory.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(rename_all = "camelCase")]
 pub struct NodeStatus {
     pub name: NodeName,
     pub app: String,
-    pub kind: &'static str,
+    /// `run` or `match`.
+    pub kind: String,
     pub core: bool,
     pub pids: Vec<u32>,
     pub main_pid: Option<u32>,
@@ -141,6 +147,7 @@ impl Agent {
                 events,
                 metrics,
                 background: Mutex::new(None),
+                parked: Mutex::new(Vec::new()),
             }),
         };
         agent.set_active_monitor("proc_scan");
@@ -187,7 +194,7 @@ impl Agent {
                 configbot_cgroups::apply(self.backend(), &unlimited)?;
                 self.emit(AgentEvent::LimitsLifted {
                     nodes,
-                    reason: "no committed config for this stack",
+                    reason: "no committed config for this stack".into(),
                 });
             }
         }
@@ -290,6 +297,7 @@ impl Agent {
                     .iter()
                     .map(|(k, n)| (k.clone(), n.persisted.clone()))
                     .collect(),
+                stack: Some(st.stack.clone()),
             }
         };
         if let Err(e) = state::save(&self.inner.settings.state_file, &snapshot) {
@@ -459,21 +467,10 @@ impl Agent {
     /// keeps it stopped, across agent restarts too, until [`Agent::start_app`].
     pub async fn stop_app(&self, app: &str) -> Result<()> {
         for node in self.app_nodes(app)? {
-            let sup = {
-                let mut st = self.st();
-                st.nodes.get_mut(&node).and_then(|rt| {
-                    rt.persisted.stopped = true;
-                    rt.supervisor.take()
-                })
-            };
-            if let Some((tx, handle)) = sup {
-                let _ = tx.send(true);
-                let _ = handle.await;
+            if let Some(rt) = self.st().nodes.get_mut(&node) {
+                rt.persisted.stopped = true;
             }
-            // match nodes, and anything a finished run node left behind.
-            if !self.backend().pids(&node).unwrap_or_default().is_empty() {
-                supervise::terminate(self, &node, None).await;
-            }
+            self.stop_node(&node).await;
         }
         self.persist();
         self.emit(AgentEvent::AppStopped {
@@ -577,7 +574,8 @@ impl Agent {
                 kind: match rt.spec.source {
                     NodeSource::Run(_) => "run",
                     NodeSource::Match(_) => "match",
-                },
+                }
+                .to_owned(),
                 core: rt.spec.core,
                 pids: self.backend().pids(name).unwrap_or_default(),
                 main_pid: rt.persisted.main.map(|(p, _)| p),
@@ -611,7 +609,7 @@ impl Agent {
             }
             self.emit(AgentEvent::LimitsLifted {
                 nodes,
-                reason: "agent shutdown",
+                reason: "agent shutdown".into(),
             });
         }
         self.persist();
@@ -622,15 +620,23 @@ impl Agent {
     pub fn detach(&self) -> Vec<JoinHandle<()>> {
         let mut handles: Vec<JoinHandle<()>> =
             lock(&self.inner.background).take().into_iter().collect();
-        handles.extend(
-            self.st()
-                .nodes
-                .values_mut()
-                .filter_map(|rt| rt.supervisor.take().map(|(_, h)| h)),
-        );
+        let mut senders = Vec::new();
+        for (tx, h) in self
+            .st()
+            .nodes
+            .values_mut()
+            .filter_map(|rt| rt.supervisor.take())
+        {
+            senders.push(tx);
+            handles.push(h);
+        }
         for h in &handles {
             h.abort();
         }
+        // A dropped stop sender reads as "stop" to a supervisor that is still
+        // running: keep the senders alive with the agent so an aborted
+        // supervisor never terminates its node on the way out.
+        lock(&self.inner.parked).extend(senders);
         handles
     }
 

@@ -4,11 +4,14 @@
 //! 0600 (only root/the agent's user may connect); TCP only with a bearer token.
 //!
 //! - `GET  /v1/nodes`              node inventory
-//! - `PUT  /v1/config`             [`ConfigUpdate`]: CPU limits per node (+ period), adaptor rates
+//! - `PUT  /v1/stack`              a `RobotStack` manifest (or a plain `StackSpec`), applied live
+//! - `PUT  /v1/config`             a `ResourceConfig`: CPU limits per node, adaptor rates per edge
+//! - `POST /v1/measure`            a [`MeasureRequest`] → [`MeasureReport`] (blocks for the window)
+//! - `GET  /v1/graph`              the ROS graph
 //! - `POST /v1/apps/{app}/stop`    graceful stop of an app
 //! - `POST /v1/apps/{app}/start`   start an app again
-//! - `GET  /v1/events`             NDJSON stream of [`AgentEvent`]s
-//! - `GET  /v1/status`             active process monitor, committed config
+//! - `GET  /v1/events`             NDJSON stream of [`RuntimeEvent`]s
+//! - `GET  /v1/status`             active process monitor, master URI, committed config
 //! - `GET  /metrics`               Prometheus text format
 
 use std::os::unix::fs::PermissionsExt;
@@ -25,8 +28,14 @@ use axum::routing::{get, post, put};
 use axum::{Json, Router};
 use serde_json::json;
 
-use crate::agent::{Agent, ConfigUpdate, error_chain};
+use configbot_manifests::{Manifest, ResourceConfig};
+
+use crate::agent::error_chain;
 use crate::error::Error;
+use crate::events::RuntimeEvent;
+use crate::measure::{MeasureReport, MeasureRequest};
+use crate::runtime::NodeRuntime;
+use crate::spec::StackSpec;
 
 /// An API error; 5xx bodies never carry internals.
 #[derive(Debug)]
@@ -42,6 +51,15 @@ impl From<Error> for ApiError {
         use configbot_cgroups::Error as C;
         match &e {
             Error::UnknownNode(_) | Error::UnknownApp(_) => Self::NotFound(e.to_string()),
+            Error::InvalidStack(_)
+            | Error::InvalidConfig(_)
+            | Error::InvalidMeasure(_)
+            | Error::Manifest { .. }
+            | Error::Adaptor {
+                source: configbot_dataplane::DataPlaneError::InvalidRate(_),
+                ..
+            } => Self::BadRequest(error_chain(&e)),
+            Error::NoDataPlane { .. } | Error::Adaptor { .. } => Self::Conflict(error_chain(&e)),
             Error::Cgroup(C::InvalidLimit { .. } | C::InvalidName { .. }) => {
                 Self::BadRequest(e.to_string())
             }
@@ -71,17 +89,20 @@ impl IntoResponse for ApiError {
 }
 
 /// The API router. `token`: require `Authorization: Bearer <token>` (TCP).
-pub fn router(agent: Agent, token: Option<String>) -> Router {
+pub fn router(rt: NodeRuntime, token: Option<String>) -> Router {
     let token = Arc::new(token);
     Router::new()
         .route("/v1/nodes", get(nodes))
+        .route("/v1/stack", put(put_stack))
         .route("/v1/config", put(put_config))
+        .route("/v1/measure", post(measure))
+        .route("/v1/graph", get(graph))
         .route("/v1/apps/{app}/stop", post(stop_app))
         .route("/v1/apps/{app}/start", post(start_app))
         .route("/v1/events", get(events))
         .route("/v1/status", get(status))
         .route("/metrics", get(metrics))
-        .with_state(agent)
+        .with_state(rt)
         .layer(middleware::from_fn_with_state(token, auth))
 }
 
@@ -107,69 +128,111 @@ fn constant_time_eq(a: &[u8], b: &[u8]) -> bool {
     a.len() == b.len() && a.iter().zip(b).fold(0u8, |acc, (x, y)| acc | (x ^ y)) == 0
 }
 
-async fn nodes(State(agent): State<Agent>) -> impl IntoResponse {
-    Json(agent.inventory())
+fn bad_json(r: &JsonRejection) -> ApiError {
+    ApiError::BadRequest(r.body_text())
+}
+
+async fn nodes(State(rt): State<NodeRuntime>) -> Result<impl IntoResponse, ApiError> {
+    Ok(Json(rt.inventory().await?))
+}
+
+async fn put_stack(
+    State(rt): State<NodeRuntime>,
+    body: Result<Json<serde_json::Value>, JsonRejection>,
+) -> Result<impl IntoResponse, ApiError> {
+    let Json(v) = body.map_err(|r| bad_json(&r))?;
+    let spec = if v.get("apiVersion").is_some() {
+        match configbot_manifests::decode_and_validate(&v) {
+            Ok(Manifest::RobotStack(s)) => StackSpec::from_manifest(&s)?,
+            Ok(other) => {
+                return Err(ApiError::BadRequest(format!(
+                    "want a RobotStack, got a {}",
+                    other.kind().name()
+                )));
+            }
+            Err(errs) => {
+                let msg: Vec<String> = errs
+                    .iter()
+                    .map(|e| format!("{}: {}", e.path, e.message))
+                    .collect();
+                return Err(ApiError::BadRequest(msg.join("; ")));
+            }
+        }
+    } else {
+        serde_json::from_value::<StackSpec>(v).map_err(|e| ApiError::BadRequest(e.to_string()))?
+    };
+    let diff = rt.set_stack_spec(spec).await?;
+    Ok(Json(diff))
 }
 
 async fn put_config(
-    State(agent): State<Agent>,
-    body: Result<Json<ConfigUpdate>, JsonRejection>,
+    State(rt): State<NodeRuntime>,
+    body: Result<Json<ResourceConfig>, JsonRejection>,
 ) -> Result<impl IntoResponse, ApiError> {
-    let Json(update) = body.map_err(|r| ApiError::BadRequest(r.body_text()))?;
-    let agent2 = agent.clone();
-    // Cgroup writes are blocking file IO.
-    tokio::task::spawn_blocking(move || agent2.put_config(update))
-        .await
-        .map_err(|_| ApiError::Internal)??;
+    let Json(cfg) = body.map_err(|r| bad_json(&r))?;
+    rt.apply(&cfg).await?;
     Ok(Json(
-        json!({ "applied": true, "committed": agent.committed() }),
+        json!({ "applied": true, "committed": rt.agent().committed() }),
     ))
 }
 
+async fn measure(
+    State(rt): State<NodeRuntime>,
+    body: Result<Json<MeasureRequest>, JsonRejection>,
+) -> Result<Json<MeasureReport>, ApiError> {
+    let Json(req) = body.map_err(|r| bad_json(&r))?;
+    Ok(Json(rt.measure(&req).await?))
+}
+
+async fn graph(State(rt): State<NodeRuntime>) -> Result<impl IntoResponse, ApiError> {
+    Ok(Json(rt.graph().await?))
+}
+
 async fn stop_app(
-    State(agent): State<Agent>,
+    State(rt): State<NodeRuntime>,
     UrlPath(app): UrlPath<String>,
 ) -> Result<impl IntoResponse, ApiError> {
-    agent.stop_app(&app).await?;
+    rt.stop_app(&app).await?;
     Ok(Json(json!({ "app": app, "stopped": true })))
 }
 
 async fn start_app(
-    State(agent): State<Agent>,
+    State(rt): State<NodeRuntime>,
     UrlPath(app): UrlPath<String>,
 ) -> Result<impl IntoResponse, ApiError> {
-    agent.start_app(&app)?;
+    rt.start_app(&app).await?;
     Ok(Json(json!({ "app": app, "started": true })))
 }
 
-async fn status(State(agent): State<Agent>) -> impl IntoResponse {
+async fn status(State(rt): State<NodeRuntime>) -> impl IntoResponse {
+    let agent = rt.agent();
     Json(json!({
         "activeMonitor": agent.active_monitor(),
+        "monitor": rt.monitor_status(),
+        "masterUri": rt.master_uri(),
         "backend": agent.backend().kind(),
         "committed": agent.committed(),
     }))
 }
 
-async fn metrics(State(agent): State<Agent>) -> Result<impl IntoResponse, ApiError> {
-    let text = agent.metrics().render().map_err(|_| ApiError::Internal)?;
+async fn metrics(State(rt): State<NodeRuntime>) -> Result<impl IntoResponse, ApiError> {
+    let text = rt.render_metrics().map_err(|_| ApiError::Internal)?;
     Ok(([(header::CONTENT_TYPE, "text/plain; version=0.0.4")], text))
 }
 
-async fn events(State(agent): State<Agent>) -> impl IntoResponse {
-    let rx = agent.subscribe();
+async fn events(State(rt): State<NodeRuntime>) -> impl IntoResponse {
+    let rx = rt.events();
     let stream = futures_util::stream::unfold(rx, |mut rx| async move {
-        let line = match rx.recv().await {
-            Ok(ev) => {
-                let mut line = serde_json::to_string(&ev).unwrap_or_default();
-                line.push('\n');
-                line
-            }
+        let ev = match rx.recv().await {
+            Ok(ev) => ev,
             // A slow reader missed events: tell it, then go on.
             Err(tokio::sync::broadcast::error::RecvError::Lagged(n)) => {
-                format!("{{\"type\":\"lagged\",\"missed\":{n}}}\n")
+                RuntimeEvent::Lagged { missed: n }
             }
             Err(tokio::sync::broadcast::error::RecvError::Closed) => return None,
         };
+        let mut line = serde_json::to_string(&ev).unwrap_or_default();
+        line.push('\n');
         Some((Ok::<_, std::convert::Infallible>(line), rx))
     });
     (
@@ -193,13 +256,16 @@ pub fn bind_unix(path: &Path) -> std::io::Result<tokio::net::UnixListener> {
 }
 
 /// Serves the API on a Unix socket (no token: the file mode is the access rule).
-pub async fn serve_unix(agent: Agent, listener: tokio::net::UnixListener) -> std::io::Result<()> {
-    axum::serve(listener, router(agent, None)).await
+pub async fn serve_unix(
+    rt: NodeRuntime,
+    listener: tokio::net::UnixListener,
+) -> std::io::Result<()> {
+    axum::serve(listener, router(rt, None)).await
 }
 
 /// Serves the API on TCP; a non-empty bearer token is mandatory.
 pub async fn serve_tcp(
-    agent: Agent,
+    rt: NodeRuntime,
     listener: tokio::net::TcpListener,
     token: String,
 ) -> std::io::Result<()> {
@@ -209,5 +275,5 @@ pub async fn serve_tcp(
             "tcp listener needs a bearer token",
         ));
     }
-    axum::serve(listener, router(agent, Some(token))).await
+    axum::serve(listener, router(rt, Some(token))).await
 }

@@ -1,22 +1,68 @@
 //! Command-line entry of the agent daemon, shared by the `configbot-agent`
-//! binary and (later) `configbot agent` in the main CLI.
+//! binary and `configbot agent` in the main CLI: starts the full
+//! [`NodeRuntime`] (agent + process monitor + ROS 1 master) and serves its API.
 
 use std::net::SocketAddr;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use configbot_cgroups::{Layout, SubtreeRoot, open_backend};
 
-use crate::agent::Agent;
+use configbot_procmon::{MonitorKind, Preference};
+use configbot_ros1::Ros1Config;
+
 use crate::error::{Error, Result};
+use crate::runtime::{NodeRuntime, RosOptions, RuntimeOptions};
 use crate::spec::{AgentSettings, StackSpec};
+
+/// Which process monitor to use.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum MonitorChoice {
+    /// eBPF, then the proc connector, then a /proc scan.
+    Auto,
+    Ebpf,
+    Connector,
+    Scan,
+    /// No process monitor: `match` nodes are found by the agent's periodic scan.
+    None,
+}
+
+impl MonitorChoice {
+    /// The procmon preference; `None` for no monitor.
+    pub fn preference(self) -> Option<Preference> {
+        match self {
+            Self::Auto => Some(Preference::Auto),
+            Self::Ebpf => Some(Preference::Only(MonitorKind::Ebpf)),
+            Self::Connector => Some(Preference::Only(MonitorKind::ProcConnector)),
+            Self::Scan => Some(Preference::Only(MonitorKind::ProcScan)),
+            Self::None => None,
+        }
+    }
+}
 
 /// Arguments of the agent daemon.
 #[derive(Debug, Clone, clap::Args)]
 pub struct AgentArgs {
-    /// Stack to supervise (JSON `StackSpec`: apps → nodes → run/match).
+    /// Stack to supervise: a RobotStack manifest (YAML or JSON) or a JSON
+    /// `StackSpec`. Without it the agent runs the stack last set through the
+    /// API (kept in the state file), or none, until `PUT /v1/stack`.
     #[arg(long)]
-    pub stack: PathBuf,
+    pub stack: Option<PathBuf>,
+    /// ROS_MASTER_URI of the robot: the agent serves the ROS master here.
+    #[arg(long, default_value = "http://localhost:11311/")]
+    pub ros_master_uri: String,
+    /// Address the ROS master and adaptors bind to.
+    #[arg(long, default_value = "0.0.0.0")]
+    pub ros_bind_host: String,
+    /// SQLite file of the ROS master (registrations, parameters, adaptors).
+    #[arg(long, default_value = "/var/lib/configbot/ros1.db")]
+    pub ros_db: PathBuf,
+    /// Run without the ROS data plane (no master, no adaptors, no topic rates).
+    #[arg(long)]
+    pub no_ros: bool,
+    /// Process monitor.
+    #[arg(long, value_enum, default_value_t = MonitorChoice::Auto)]
+    pub monitor: MonitorChoice,
     /// The agent's subtree in the cpu cgroup hierarchies.
     #[arg(long, default_value = "configbot")]
     pub cgroup_root: String,
@@ -63,31 +109,88 @@ impl AgentArgs {
     }
 }
 
-/// Runs the agent until SIGINT or SIGTERM, then shuts down (processes keep running).
+/// Reads a stack file: a JSON `StackSpec` (has top-level `apps`) or a
+/// RobotStack manifest (YAML or JSON, validated by `configbot_manifests`).
+pub fn read_stack(path: &Path) -> Result<StackSpec> {
+    let text = std::fs::read_to_string(path).map_err(|source| Error::Io {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    if let Ok(v) = serde_json::from_str::<serde_json::Value>(&text)
+        && v.get("apps").is_some()
+    {
+        return serde_json::from_value(v).map_err(|source| Error::State {
+            path: path.to_path_buf(),
+            source,
+        });
+    }
+    let name = path.display().to_string();
+    let docs = configbot_manifests::load(&name, &text).map_err(|e| Error::Manifest {
+        source_name: name.clone(),
+        message: e.to_string(),
+    })?;
+    let mut stacks = docs.iter().filter_map(|d| match &d.manifest {
+        configbot_manifests::Manifest::RobotStack(s) => Some(s),
+        configbot_manifests::Manifest::PerformanceSpec(_) => None,
+    });
+    match (stacks.next(), stacks.next()) {
+        (Some(s), None) => StackSpec::from_manifest(s),
+        _ => Err(Error::Manifest {
+            source_name: name,
+            message: "want exactly one RobotStack".into(),
+        }),
+    }
+}
+
+/// The runtime options these arguments describe.
+pub fn options(args: &AgentArgs) -> Result<RuntimeOptions> {
+    Ok(RuntimeOptions {
+        settings: args.settings()?,
+        ros: (!args.no_ros).then(|| RosOptions {
+            config: Ros1Config {
+                master_uri: args.ros_master_uri.clone(),
+                bind_host: args.ros_bind_host.clone(),
+                ..Ros1Config::default()
+            },
+            db_path: args.ros_db.clone(),
+            policy: configbot_dataplane::policy::PolicyConfig::default(),
+        }),
+        monitor: args.monitor.preference(),
+    })
+}
+
+/// Runs the node runtime until SIGINT or SIGTERM, then shuts down
+/// (processes keep running).
 pub async fn run(args: AgentArgs) -> Result<()> {
     let io = |path: &PathBuf| {
         let path = path.clone();
         move |source| Error::Io { path, source }
     };
-    let text = std::fs::read_to_string(&args.stack).map_err(io(&args.stack))?;
-    let stack: StackSpec = serde_json::from_str(&text).map_err(|source| Error::State {
-        path: args.stack.clone(),
-        source,
-    })?;
+    let opts = options(&args)?;
+    let stack = match &args.stack {
+        Some(p) => read_stack(p)?,
+        None => crate::state::load(&opts.settings.state_file)?
+            .and_then(|s| s.stack)
+            .unwrap_or_default(),
+    };
     let layout = Layout::detect().map_err(io(&PathBuf::from("/proc/self/mountinfo")))?;
-    let settings = args.settings()?;
-    let backend = open_backend(&layout, settings.cgroup_root.clone())?;
-    let agent = Agent::start(backend, settings, stack).await?;
+    let backend = open_backend(&layout, opts.settings.cgroup_root.clone())?;
+    let rt = NodeRuntime::start(backend, opts, stack).await?;
+    eprintln!(
+        "configbot-agent: {}; ros master {}",
+        rt.monitor_status(),
+        rt.master_uri().as_deref().unwrap_or("disabled")
+    );
 
     let unix = crate::api::bind_unix(&args.socket).map_err(io(&args.socket))?;
     let mut servers = tokio::task::JoinSet::new();
-    servers.spawn(crate::api::serve_unix(agent.clone(), unix));
+    servers.spawn(crate::api::serve_unix(rt.clone(), unix));
     if let Some(addr) = args.tcp {
         let token = args.token.clone().unwrap_or_default();
         let l = tokio::net::TcpListener::bind(addr)
             .await
             .map_err(io(&PathBuf::from(addr.to_string())))?;
-        servers.spawn(crate::api::serve_tcp(agent.clone(), l, token));
+        servers.spawn(crate::api::serve_tcp(rt.clone(), l, token));
     }
     let mut term = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())
         .map_err(io(&PathBuf::from("SIGTERM")))?;
@@ -96,12 +199,12 @@ pub async fn run(args: AgentArgs) -> Result<()> {
         _ = term.recv() => {}
         Some(res) = servers.join_next() => {
             if let Ok(Err(e)) = res {
-                agent.shutdown().await;
+                rt.shutdown().await;
                 return Err(Error::Io { path: args.socket.clone(), source: e });
             }
         }
     }
-    agent.shutdown().await;
+    rt.shutdown().await;
     let _ = std::fs::remove_file(&args.socket);
     Ok(())
 }

@@ -32,6 +32,32 @@ pub enum Error {
     InvalidStack(String),
     #[error("cannot create metrics")]
     Metrics(#[source] prometheus::Error),
+    #[error("invalid config: {0}")]
+    InvalidConfig(String),
+    #[error("invalid measure request: {0}")]
+    InvalidMeasure(String),
+    #[error("{what} needs the ROS data plane, which is disabled")]
+    NoDataPlane { what: String },
+    #[error("adaptor on edge {topic} -> {subscriber}")]
+    Adaptor {
+        topic: String,
+        subscriber: String,
+        #[source]
+        source: configbot_dataplane::DataPlaneError,
+    },
+    #[error("starting the ros 1 data plane at {master_uri}")]
+    Ros {
+        master_uri: String,
+        #[source]
+        source: configbot_ros1::Ros1Error,
+    },
+    #[error("starting the process monitor")]
+    Monitor(#[source] configbot_procmon::MonitorError),
+    #[error("stack manifest {source_name} is invalid: {message}")]
+    Manifest {
+        source_name: String,
+        message: String,
+    },
     #[error("state file {path} is corrupt")]
     State {
         path: PathBuf,

@@ -10,20 +10,25 @@
 pub mod agent;
 pub mod api;
 pub mod cli;
+pub mod client;
 pub mod error;
 pub mod events;
+pub mod manifest;
 pub mod measure;
 pub mod metrics;
 pub mod policy;
 pub mod procfs;
+pub mod runtime;
 pub mod spawn;
 pub mod spec;
 pub mod state;
 mod supervise;
 
+pub use agent::stack::{StackDiff, diff_stacks};
 pub use agent::{Agent, ConfigUpdate, NodeStatus};
 pub use error::{Error, Result};
-pub use events::{AgentEvent, ProcEvent, ProcEventKind};
+pub use events::{AgentEvent, ProcEvent, ProcEventKind, RuntimeEvent};
+pub use runtime::{NodeRuntime, RosOptions, RuntimeOptions};
 pub use spec::{
     AgentSettings, AppSpec, MatchSpec, NodeSource, NodeSpec, RestartPolicy, RunSpec, StackSpec,
 };

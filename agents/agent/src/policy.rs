@@ -5,7 +5,7 @@ use std::time::Duration;
 use crate::spec::RestartPolicy;
 
 /// How a supervised process ended.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "camelCase")]
 pub enum ExitKind {
     /// Exit code 0.

@@ -163,6 +163,7 @@ mod tests {
         let m = Matcher::new(&MatchSpec {
             process_name: Some("python3".into()),
             cmdline_regex: Some("camera_node".into()),
+            ros_node: None,
         })
         .unwrap();
         assert!(m.matches(&procs[0]));
@@ -170,6 +171,7 @@ mod tests {
         let any = Matcher::new(&MatchSpec {
             process_name: Some("kworker".into()),
             cmdline_regex: None,
+            ros_node: None,
         })
         .unwrap();
         assert!(!any.matches(&procs[3]), "kernel threads never match");

@@ -80,6 +80,10 @@ pub struct MatchSpec {
     /// Regex over the NUL-joined-by-space command line.
     #[serde(default)]
     pub cmdline_regex: Option<String>,
+    /// The ROS node name registered with the master: the process is found by
+    /// its slave API's `getPid` (needs the ROS data plane, see `runtime`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub ros_node: Option<String>,
 }
 
 /// The agent's own settings.
@@ -158,9 +162,9 @@ impl StackSpec {
                 return Err(format!("node {} appears twice", n.name));
             }
             if let NodeSource::Match(m) = &n.source {
-                if m.process_name.is_none() && m.cmdline_regex.is_none() {
+                if m.process_name.is_none() && m.cmdline_regex.is_none() && m.ros_node.is_none() {
                     return Err(format!(
-                        "node {}: match needs processName or cmdlineRegex",
+                        "node {}: match needs processName, cmdlineRegex or rosNode",
                         n.name
                     ));
                 }

@@ -12,6 +12,7 @@ use std::io::Write;
 use std::path::Path;
 
 use configbot_cgroups::{CgroupConfig, CpuLimit, NodeName};
+use configbot_manifests::AdaptorRate;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
@@ -24,6 +25,10 @@ pub struct PersistedState {
     pub committed: Option<CommittedConfig>,
     #[serde(default)]
     pub nodes: BTreeMap<NodeName, PersistedNode>,
+    /// The stack last set at run time (`set_stack`), used when the agent
+    /// starts without one.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub stack: Option<StackSpec>,
 }
 
 /// The last config the controller put, with the node set it was made for.
@@ -31,9 +36,27 @@ pub struct PersistedState {
 #[serde(rename_all = "camelCase")]
 pub struct CommittedConfig {
     pub limits: BTreeMap<NodeName, CpuLimit>,
-    #[serde(default)]
-    pub adaptor_rates: BTreeMap<String, f64>,
+    /// Adaptor rates per (topic, subscriber) edge. A state file of an older
+    /// agent (topic → rate map) reads as no rates.
+    #[serde(default, deserialize_with = "edge_rates_or_legacy")]
+    pub adaptor_rates: Vec<AdaptorRate>,
     pub stack_nodes: BTreeSet<NodeName>,
+}
+
+fn edge_rates_or_legacy<'de, D: serde::Deserializer<'de>>(
+    d: D,
+) -> Result<Vec<AdaptorRate>, D::Error> {
+    #[derive(Deserialize)]
+    #[serde(untagged)]
+    enum Either {
+        Edges(Vec<AdaptorRate>),
+        // Read to be skipped, never used.
+        Legacy(#[allow(dead_code)] BTreeMap<String, f64>),
+    }
+    Ok(match Either::deserialize(d)? {
+        Either::Edges(v) => v,
+        Either::Legacy(_) => Vec::new(),
+    })
 }
 
 /// A node's process identity and counters.
@@ -137,6 +160,7 @@ mod tests {
                         source: NodeSource::Match(MatchSpec {
                             process_name: Some("x".into()),
                             cmdline_regex: None,
+                            ros_node: None,
                         }),
                     })
                     .collect(),
@@ -149,7 +173,7 @@ mod tests {
         let s = stack(&[("/a", true), ("/b", false)]);
         let committed = CommittedConfig {
             limits: BTreeMap::from([(NodeName::new("/a").unwrap(), CpuLimit::cpus(0.2))]),
-            adaptor_rates: BTreeMap::new(),
+            adaptor_rates: Vec::new(),
             stack_nodes: stack_nodes(&s),
         };
         let lift_a = StartupLimits::LiftCore(vec![NodeName::new("/a").unwrap()]);
@@ -182,6 +206,17 @@ mod tests {
         );
         save(&path, &st).unwrap();
         assert_eq!(load(&path).unwrap(), Some(st));
+        let legacy = r#"{"committed":{"limits":{},"adaptorRates":{"/t":5.0},"stackNodes":[]}}"#;
+        std::fs::write(&path, legacy).unwrap();
+        assert_eq!(
+            load(&path)
+                .unwrap()
+                .unwrap()
+                .committed
+                .unwrap()
+                .adaptor_rates,
+            vec![]
+        );
         std::fs::write(&path, "{").unwrap();
         assert!(matches!(load(&path), Err(Error::State { .. })));
     }

@@ -46,7 +46,8 @@ async fn call(
 async fn endpoints_inventory_config_metrics_events() {
     let mut env = Env::new();
     let agent = env.start(stack_json(STACK)).await;
-    let app = router(agent.clone(), None);
+    let rt = configbot_agent::NodeRuntime::with_agent(agent.clone()).unwrap();
+    let app = router(rt, None);
 
     let (code, body) = call(&app, "GET", "/v1/nodes", "", None).await;
     assert_eq!(code, StatusCode::OK);
@@ -70,25 +71,20 @@ async fn endpoints_inventory_config_metrics_events() {
     let mut events = resp.into_body();
 
     let cases = [
+        (r#"{"cpu":{"/sleeper":-1}}"#, StatusCode::BAD_REQUEST),
         (
-            r#"{"limits":{"/sleeper":{"cpus":-1}}}"#,
+            r#"{"cpu":{"/sleeper":0.5},"cpuPeriodMicros":10}"#,
             StatusCode::BAD_REQUEST,
         ),
-        (
-            r#"{"limits":{"/sleeper":{"cpus":0.5,"periodUs":10}}}"#,
-            StatusCode::BAD_REQUEST,
-        ),
-        (
-            r#"{"limits":{"/ghost":{"cpus":0.5}}}"#,
-            StatusCode::NOT_FOUND,
-        ),
-        (
-            r#"{"limits":{"/../x":{"cpus":0.5}}}"#,
-            StatusCode::BAD_REQUEST,
-        ),
+        (r#"{"cpu":{"/ghost":0.5}}"#, StatusCode::NOT_FOUND),
+        (r#"{"cpu":{"/../x":0.5}}"#, StatusCode::BAD_REQUEST),
         ("not json", StatusCode::BAD_REQUEST),
         (
-            r#"{"limits":{"/sleeper":{"cpus":0.5,"periodUs":50000}},"adaptorRates":{"/scan":10.0}}"#,
+            r#"{"cpu":{"/sleeper":0.5},"adaptors":[{"topic":"/scan","subscriber":"/sleeper","rateHz":10}]}"#,
+            StatusCode::CONFLICT,
+        ),
+        (
+            r#"{"cpu":{"/sleeper":0.5},"cpuPeriodMicros":50000}"#,
             StatusCode::OK,
         ),
     ];
@@ -165,7 +161,8 @@ async fn endpoints_inventory_config_metrics_events() {
 async fn tcp_needs_the_bearer_token() {
     let mut env = Env::new();
     let agent = env.start(stack_json(r#"{"apps":[]}"#)).await;
-    let app = router(agent.clone(), Some("s3cret".into()));
+    let rt = configbot_agent::NodeRuntime::with_agent(agent.clone()).unwrap();
+    let app = router(rt.clone(), Some("s3cret".into()));
     assert_eq!(
         call(&app, "GET", "/v1/nodes", "", None).await.0,
         StatusCode::UNAUTHORIZED
@@ -181,7 +178,7 @@ async fn tcp_needs_the_bearer_token() {
 
     let l = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
     let addr = l.local_addr().unwrap();
-    tokio::spawn(serve_tcp(agent.clone(), l, "s3cret".into()));
+    tokio::spawn(serve_tcp(rt.clone(), l, "s3cret".into()));
     let (no_token, with_token) = tokio::task::spawn_blocking(move || {
         let a = http(
             std::net::TcpStream::connect(addr).unwrap(),
@@ -206,7 +203,7 @@ async fn tcp_needs_the_bearer_token() {
 
     let l = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
     assert!(
-        serve_tcp(agent, l, String::new()).await.is_err(),
+        serve_tcp(rt, l, String::new()).await.is_err(),
         "tcp without a token must be refused"
     );
 }
@@ -219,7 +216,8 @@ async fn unix_socket_is_0600_and_refuses_other_users() {
     std::fs::set_permissions(env.dir.path(), std::fs::Permissions::from_mode(0o755)).unwrap();
     let path = env.path("agent.sock");
     let listener = bind_unix(&path).unwrap();
-    tokio::spawn(serve_unix(agent, listener));
+    let rt = configbot_agent::NodeRuntime::with_agent(agent).unwrap();
+    tokio::spawn(serve_unix(rt, listener));
     let mode = std::fs::metadata(&path).unwrap().permissions().mode() & 0o777;
     assert_eq!(mode, 0o600);
 

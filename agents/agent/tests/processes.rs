@@ -64,7 +64,7 @@ async fn busy_node_measures_its_limit_then_about_one_cpu() {
     agent
         .put_config(ConfigUpdate {
             limits: BTreeMap::from([(n.clone(), CpuLimit::cpus(0.2))]),
-            adaptor_rates: BTreeMap::new(),
+            adaptor_rates: Vec::new(),
         })
         .unwrap();
     tokio::time::sleep(Duration::from_millis(300)).await;
@@ -81,7 +81,7 @@ async fn busy_node_measures_its_limit_then_about_one_cpu() {
     agent
         .put_config(ConfigUpdate {
             limits: BTreeMap::from([(n.clone(), CpuLimit::UNLIMITED)]),
-            adaptor_rates: BTreeMap::new(),
+            adaptor_rates: Vec::new(),
         })
         .unwrap();
     let free = measure_cpus(agent.backend(), &n, Duration::from_secs(3)).await;
@@ -297,7 +297,7 @@ async fn configured_shutdown_lifts_every_limit_and_keeps_processes() {
     agent
         .put_config(ConfigUpdate {
             limits: BTreeMap::from([(n.clone(), CpuLimit::cpus(0.2))]),
-            adaptor_rates: BTreeMap::new(),
+            adaptor_rates: Vec::new(),
         })
         .unwrap();
     assert_eq!(agent.backend().cpu_max(&n).unwrap().quota_us, Some(20_000));

@@ -28,6 +28,7 @@ fn spawn_agent(env: &Env, stack: &Path, socket: &Path) -> AgentProc {
         .args(["--log-dir", env.path("logs").to_str().unwrap()])
         .args(["--socket", socket.to_str().unwrap()])
         .args(["--scan-interval-ms", "100", "--stop-timeout-ms", "1000"])
+        .args(["--no-ros", "--monitor", "none"])
         .spawn()
         .unwrap();
     AgentProc(child)
@@ -86,7 +87,7 @@ fn kill_9_then_restart_readopts_everything_with_limits_intact() {
         &socket,
         "PUT",
         "/v1/config",
-        Some(r#"{"limits":{"/worker":{"cpus":0.2,"periodUs":20000},"/found":{"cpus":0.3}}}"#),
+        Some(r#"{"cpu":{"/worker":0.2,"/found":0.3},"cpuPeriodMicros":20000}"#),
     )
     .unwrap();
     assert_eq!(code, 200, "{body}");
@@ -128,8 +129,8 @@ fn kill_9_then_restart_readopts_everything_with_limits_intact() {
     assert_eq!(
         b.cpu_max(&node("/found")).unwrap(),
         CpuMax {
-            quota_us: Some(30_000),
-            period_us: 100_000
+            quota_us: Some(6_000),
+            period_us: 20_000
         }
     );
     let (_, status) = request(&socket, "GET", "/v1/status", None).unwrap();
@@ -168,7 +169,7 @@ fn a_changed_stack_lifts_stale_limits_of_core_nodes() {
             &socket,
             "PUT",
             "/v1/config",
-            Some(r#"{"limits":{"/core":{"cpus":0.2}}}"#),
+            Some(r#"{"cpu":{"/core":0.2}}"#),
         )
         .unwrap();
         assert_eq!(code, 200, "{body}");

@@ -166,6 +166,15 @@ pub trait DataPlane: Send + Sync {
     /// Rate statistics of `topic` as seen by a plain subscriber. The first
     /// call starts measuring; `Ok(None)` until enough messages arrived.
     fn topic_stats(&self, topic: &str) -> Result<Option<TopicStats>, DataPlaneError>;
+    /// Messages the topic's meter has received since it started (the first
+    /// call starts it, like [`DataPlane::topic_stats`]); a monotonic counter,
+    /// so callers get exact counts over any interval from two readings.
+    fn topic_messages(&self, topic: &str) -> Result<u64, DataPlaneError> {
+        Err(DataPlaneError::Backend {
+            message: format!("message counts of {topic} are not supported by this backend"),
+            source: None,
+        })
+    }
     /// Rate statistics of what an adaptor forwards to its subscriber.
     fn edge_stats(&self, edge: &EdgeId) -> Option<TopicStats>;
     /// Puts an adaptor on `edge` (if none) and sets its rate; applies to a

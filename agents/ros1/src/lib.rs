@@ -410,6 +410,17 @@ impl DataPlane for Ros1DataPlane {
         Ok(self.core.meter(topic).stats())
     }
 
+    fn topic_messages(&self, topic: &str) -> Result<u64, DataPlaneError> {
+        let known = {
+            let st = lock(&self.core.state);
+            st.publishers.contains_key(topic) || st.subscribers.contains_key(topic)
+        };
+        if !known {
+            return Err(DataPlaneError::UnknownTopic(topic.into()));
+        }
+        Ok(self.core.meter(topic).messages())
+    }
+
     fn edge_stats(&self, edge: &EdgeId) -> Option<TopicStats> {
         let r = lock(&self.core.relays).get(edge).cloned()?;
         r.edge.consumer_stats()

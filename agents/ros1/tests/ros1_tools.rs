@@ -211,6 +211,13 @@ fn params_topics_launch_and_graph_with_real_tools() {
     assert!((28.5..=31.5).contains(&s.rate_hz), "{s:?}");
     assert!(s.bytes_per_s > 30.0 * 4.0, "{s:?}");
     assert!(a.dp.topic_stats("/no_such_topic").is_err());
+    // the meter's message counter: exact counts over an interval
+    let c0 = a.dp.topic_messages(&chatter).unwrap();
+    let t0 = std::time::Instant::now();
+    std::thread::sleep(Duration::from_secs(2));
+    let counted = (a.dp.topic_messages(&chatter).unwrap() - c0) as f64 / t0.elapsed().as_secs_f64();
+    assert!((27.0..=33.0).contains(&counted), "counted {counted} Hz");
+    assert!(a.dp.topic_messages("/no_such_topic").is_err());
     launch.interrupt(Duration::from_secs(15));
 }
 

@@ -2,6 +2,8 @@
 //! process in them and removes them on drop, event waiting, raw HTTP.
 #![allow(dead_code)]
 
+pub mod rt;
+
 use std::io::{Read, Write};
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicU32, Ordering};

@@ -1,0 +1,514 @@
+//! The node runtime: one daemon that owns the robot. [`NodeRuntime`] joins
+//! the [`Agent`] (per-node cgroups, run/match processes), the process monitor
+//! (`configbot-procmon`: eBPF → proc connector → /proc scan) and the ROS 1 data
+//! plane (`configbot-ros1`: the agent is the ROS master). Glue only:
+//!
+//! - every process event goes to [`Agent::process_event`] (immediate `match`
+//!   adoption), wakes the ROS graph monitor and becomes a [`RuntimeEvent`];
+//! - ROS adoption: a `run` node (by its name) or a `match: {rosNode}` node
+//!   whose ROS name has a pid in the graph (slave API `getPid`) has that pid
+//!   moved into its cgroup, on every graph change and every second;
+//! - adaptor placement follows the stack's core/non-core apps, updated by
+//!   [`NodeRuntime::set_stack`];
+//! - `apply` (module `apply`) and `measure` (module `measure`).
+//!
+//! The controller calls the same methods on an embedded runtime and, over
+//! HTTP, on [`crate::client::AgentClient`].
+
+mod apply;
+mod measure;
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::path::PathBuf;
+use std::sync::{Arc, Mutex, MutexGuard, RwLock};
+use std::time::Duration;
+
+use configbot_cgroups::CgroupBackend;
+use configbot_dataplane::policy::{AppOf, PolicyConfig};
+use configbot_dataplane::{DataPlane, Graph, GraphEvent};
+use configbot_manifests::RobotStack;
+use configbot_procmon::{MonitorConfig, MonitorHandle, Preference, ProcessMonitor};
+use configbot_ros1::{Ros1Config, Ros1DataPlane, placement_from_apps};
+use prometheus::{GaugeVec, Opts, Registry, TextEncoder};
+use tokio::sync::broadcast;
+use tokio::task::JoinHandle;
+
+pub use self::apply::{Plan, plan};
+pub use self::measure::{Reading, boundaries, series};
+use crate::agent::stack::StackDiff;
+use crate::agent::{Agent, NodeStatus};
+use crate::error::{Error, Result};
+use crate::events::{AgentEvent, ProcEvent, ProcEventKind, RuntimeEvent};
+use crate::spec::{AgentSettings, NodeSource, StackSpec};
+
+/// Shortest gap between two graph wake-ups caused by process events.
+pub const WAKE_GAP: Duration = Duration::from_millis(50);
+
+/// The ROS 1 part of the runtime.
+#[derive(Debug, Clone)]
+pub struct RosOptions {
+    /// Master URI, ports and periods (its `placement` is set by the runtime).
+    pub config: Ros1Config,
+    /// SQLite file of registrations, parameters and adaptor settings.
+    pub db_path: PathBuf,
+    /// Adaptor placement policy (include/exclude lists; the rate rule is the
+    /// tuner's business).
+    pub policy: PolicyConfig,
+}
+
+/// Everything [`NodeRuntime::start`] needs besides the cgroup backend.
+#[derive(Debug, Clone)]
+pub struct RuntimeOptions {
+    pub settings: AgentSettings,
+    /// `None`: no ROS data plane (`--no-ros`).
+    pub ros: Option<RosOptions>,
+    /// `None`: no process monitor; `match` nodes are found by the agent's scan.
+    pub monitor: Option<Preference>,
+}
+
+/// The node runtime handle; cheap to clone.
+#[derive(Debug, Clone)]
+pub struct NodeRuntime {
+    inner: Arc<Inner>,
+}
+
+struct Inner {
+    agent: Agent,
+    dp: Option<Arc<Ros1DataPlane>>,
+    /// ROS node name → core, read by the adaptor placement.
+    apps: Arc<RwLock<BTreeMap<String, bool>>>,
+    events: broadcast::Sender<RuntimeEvent>,
+    monitor: Mutex<Option<MonitorHandle>>,
+    monitor_status: String,
+    tasks: Mutex<Vec<JoinHandle<()>>>,
+    /// Process events ask for a graph refresh here; one task passes them on
+    /// to the data plane at most every [`WAKE_GAP`].
+    wake: tokio::sync::Notify,
+    /// Serializes set_stack and apply.
+    ops: tokio::sync::Mutex<()>,
+    /// Topics whose meters this runtime started.
+    metered: Mutex<BTreeSet<String>>,
+    registry: Registry,
+    topic_rate: GaugeVec,
+}
+
+impl std::fmt::Debug for Inner {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("NodeRuntime")
+            .field("agent", &self.agent)
+            .field("ros", &self.dp.as_ref().map(|d| d.master_uri().to_owned()))
+            .field("monitor", &self.monitor_status)
+            .finish_non_exhaustive()
+    }
+}
+
+fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
+}
+
+/// Milliseconds since the Unix epoch.
+pub(crate) fn unix_ms() -> u64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| u64::try_from(d.as_millis()).unwrap_or(u64::MAX))
+}
+
+/// ROS name → core flag of every node tied to a ROS name.
+fn app_map(stack: &StackSpec) -> BTreeMap<String, bool> {
+    let mut m = BTreeMap::new();
+    for (_, n) in stack.nodes() {
+        m.insert(n.name.as_str().to_owned(), n.core);
+        if let NodeSource::Match(mm) = &n.source
+            && let Some(r) = &mm.ros_node
+        {
+            m.insert(r.clone(), n.core);
+        }
+    }
+    m
+}
+
+/// `run` nodes get `ROS_MASTER_URI` of the agent's master unless they set one.
+fn with_master_uri(mut stack: StackSpec, master_uri: Option<&str>) -> StackSpec {
+    let Some(uri) = master_uri else {
+        return stack;
+    };
+    for app in &mut stack.apps {
+        for n in &mut app.nodes {
+            if let NodeSource::Run(r) = &mut n.source {
+                r.env
+                    .entry("ROS_MASTER_URI".into())
+                    .or_insert_with(|| uri.to_owned());
+            }
+        }
+    }
+    stack
+}
+
+impl NodeRuntime {
+    /// Starts the data plane (so the master is up before nodes start), then
+    /// the agent for `stack`, then the process monitor and the glue tasks.
+    pub async fn start(
+        backend: Box<dyn CgroupBackend>,
+        opts: RuntimeOptions,
+        stack: StackSpec,
+    ) -> Result<Self> {
+        let registry = Registry::new();
+        let apps = Arc::new(RwLock::new(app_map(&stack)));
+        let dp = match opts.ros {
+            None => None,
+            Some(ros) => {
+                let map = apps.clone();
+                let of: Arc<dyn AppOf + Send + Sync> = Arc::new(move |n: &str| {
+                    map.read()
+                        .unwrap_or_else(std::sync::PoisonError::into_inner)
+                        .get(n)
+                        .copied()
+                });
+                let mut cfg = ros.config;
+                cfg.placement = Some(placement_from_apps(of, ros.policy));
+                let master_uri = cfg.master_uri.clone();
+                let dp = Ros1DataPlane::start(cfg, &ros.db_path, &registry)
+                    .await
+                    .map_err(|source| Error::Ros { master_uri, source })?;
+                Some(Arc::new(dp))
+            }
+        };
+        let stack = with_master_uri(stack, dp.as_ref().map(|d| d.master_uri()));
+        let agent = Agent::start(backend, opts.settings, stack).await?;
+        let (monitor, stream) = match opts.monitor {
+            None => (None, None),
+            Some(pref) => {
+                let (h, s) = ProcessMonitor::start(MonitorConfig::with_preference(pref))
+                    .await
+                    .map_err(Error::Monitor)?;
+                agent.set_active_monitor(h.label());
+                (Some(h), Some(s))
+            }
+        };
+        let rt = Self::assemble(agent, dp, apps, registry, monitor)?;
+        if let Some(mut s) = stream {
+            let me = rt.clone();
+            rt.spawn(async move {
+                while let Some(ev) = s.recv().await {
+                    me.on_process_event(&ev);
+                }
+            });
+        }
+        if let Some(dp) = rt.inner.dp.clone() {
+            let me = rt.clone();
+            let d = dp.clone();
+            rt.spawn(async move { me.graph_loop(d).await });
+            let me = rt.clone();
+            rt.spawn(async move {
+                loop {
+                    me.inner.wake.notified().await;
+                    dp.wake();
+                    tokio::time::sleep(WAKE_GAP).await;
+                }
+            });
+        }
+        Ok(rt)
+    }
+
+    /// A runtime around an already started agent, without ROS and without a
+    /// process monitor (tests, `--no-ros`-style embedding).
+    pub fn with_agent(agent: Agent) -> Result<Self> {
+        let apps = Arc::new(RwLock::new(app_map(&agent.stack())));
+        Self::assemble(agent, None, apps, Registry::new(), None)
+    }
+
+    fn assemble(
+        agent: Agent,
+        dp: Option<Arc<Ros1DataPlane>>,
+        apps: Arc<RwLock<BTreeMap<String, bool>>>,
+        registry: Registry,
+        monitor: Option<MonitorHandle>,
+    ) -> Result<Self> {
+        let topic_rate = GaugeVec::new(
+            Opts::new(
+                "configbot_agent_topic_rate_hz",
+                "Mean rate of a topic (subscriber: delivered to that node) over the last measure window",
+            ),
+            &["topic", "subscriber"],
+        )
+        .map_err(Error::Metrics)?;
+        registry
+            .register(Box::new(topic_rate.clone()))
+            .map_err(Error::Metrics)?;
+        let monitor_status = monitor
+            .as_ref()
+            .map_or_else(|| "none".to_owned(), |m| m.status().summary());
+        let (events, _) = broadcast::channel(4096);
+        let rt = Self {
+            inner: Arc::new(Inner {
+                agent,
+                dp,
+                apps,
+                events,
+                monitor: Mutex::new(monitor),
+                monitor_status,
+                tasks: Mutex::new(Vec::new()),
+                wake: tokio::sync::Notify::new(),
+                ops: tokio::sync::Mutex::new(()),
+                metered: Mutex::new(BTreeSet::new()),
+                registry,
+                topic_rate,
+            }),
+        };
+        let mut rx = rt.inner.agent.subscribe();
+        let me = rt.clone();
+        rt.spawn(async move {
+            loop {
+                match rx.recv().await {
+                    // The runtime emits its own, richer exec events.
+                    Ok(AgentEvent::ProcessExec { .. }) => {}
+                    Ok(ev) => me.emit(RuntimeEvent::Agent(ev)),
+                    Err(broadcast::error::RecvError::Lagged(n)) => {
+                        me.emit(RuntimeEvent::Lagged { missed: n });
+                    }
+                    Err(broadcast::error::RecvError::Closed) => return,
+                }
+            }
+        });
+        Ok(rt)
+    }
+
+    fn spawn(&self, f: impl std::future::Future<Output = ()> + Send + 'static) {
+        lock(&self.inner.tasks).push(tokio::spawn(f));
+    }
+
+    fn emit(&self, ev: RuntimeEvent) {
+        let _ = self.inner.events.send(ev);
+    }
+
+    /// The agent core.
+    pub fn agent(&self) -> &Agent {
+        &self.inner.agent
+    }
+
+    /// The data plane, when ROS is enabled.
+    pub fn data_plane(&self) -> Option<Arc<dyn DataPlane>> {
+        self.inner.dp.clone().map(|d| d as Arc<dyn DataPlane>)
+    }
+
+    /// The ROS master URI nodes should use, when ROS is enabled.
+    pub fn master_uri(&self) -> Option<String> {
+        self.inner.dp.as_ref().map(|d| d.master_uri().to_owned())
+    }
+
+    /// The process monitor in use and why better ones failed.
+    pub fn monitor_status(&self) -> &str {
+        &self.inner.monitor_status
+    }
+
+    fn on_process_event(&self, ev: &configbot_procmon::ProcEvent) {
+        use configbot_procmon::ProcEventKind as K;
+        let kind = match ev.kind {
+            K::Exec => ProcEventKind::Exec,
+            K::Exit => ProcEventKind::Exit,
+        };
+        self.inner.agent.process_event(&ProcEvent {
+            kind,
+            pid: ev.pid,
+            ppid: ev.ppid,
+            comm: ev.comm.clone(),
+        });
+        // Every exec/exit wakes the graph monitor (coalesced: a busy host
+        // execs hundreds of processes a second).
+        self.inner.wake.notify_one();
+        let seen = unix_ms();
+        self.emit(match kind {
+            ProcEventKind::Exec => {
+                let age_ms = configbot_procmon::monotonic_now_ns().saturating_sub(ev.timestamp_ns)
+                    / 1_000_000;
+                RuntimeEvent::ProcessExec {
+                    pid: ev.pid,
+                    ppid: ev.ppid,
+                    comm: ev.comm.clone(),
+                    filename: ev.filename.clone(),
+                    at_unix_ms: seen.saturating_sub(age_ms),
+                    seen_unix_ms: seen,
+                }
+            }
+            ProcEventKind::Exit => RuntimeEvent::ProcessExit {
+                pid: ev.pid,
+                exit_code: ev.exit_code,
+            },
+        });
+    }
+
+    /// Graph changes become events and trigger ROS adoption; a 1 s tick
+    /// catches pids that appeared without a change event reaching us.
+    async fn graph_loop(&self, dp: Arc<Ros1DataPlane>) {
+        let mut rx = dp.subscribe_events();
+        let mut tick = tokio::time::interval(Duration::from_secs(1));
+        loop {
+            tokio::select! {
+                r = rx.recv() => match r {
+                    Ok(first) => {
+                        let mut events: Vec<GraphEvent> = vec![first];
+                        while let Ok(more) = rx.try_recv() {
+                            events.push(more);
+                        }
+                        self.emit(RuntimeEvent::GraphChanged { events });
+                    }
+                    Err(broadcast::error::RecvError::Lagged(_)) => {}
+                    Err(broadcast::error::RecvError::Closed) => return,
+                },
+                _ = tick.tick() => {}
+            }
+            self.adopt_ros_nodes();
+        }
+    }
+
+    /// Moves each ROS-named node's graph pid into its cgroup when it is not
+    /// in a node cgroup yet (a process in another node's cgroup is never
+    /// stolen).
+    pub fn adopt_ros_nodes(&self) {
+        let Some(dp) = &self.inner.dp else {
+            return;
+        };
+        let names = self.inner.agent.ros_names();
+        if names.is_empty() {
+            return;
+        }
+        let graph = dp.graph();
+        let inventory = self.inner.agent.inventory();
+        let owner = |pid: u32| inventory.iter().find(|n| n.pids.contains(&pid));
+        for (node, ros) in names {
+            let Some(pid) = graph.nodes.get(&ros).and_then(|n| n.pid) else {
+                continue;
+            };
+            if owner(pid).is_none() {
+                let _ = self.inner.agent.adopt(&node, pid);
+            }
+        }
+    }
+
+    fn mark_metered(&self, topic: &str) -> bool {
+        lock(&self.inner.metered).insert(topic.to_owned())
+    }
+
+    fn metrics_topic_rate(&self, topic: &str, subscriber: Option<&str>, hz: f64) {
+        self.inner
+            .topic_rate
+            .with_label_values(&[topic, subscriber.unwrap_or("")])
+            .set(hz);
+    }
+
+    /// Prometheus text: the agent's metrics, then the runtime's (topic
+    /// rates, ROS adaptors).
+    pub fn render_metrics(&self) -> Result<String> {
+        let mut text = self
+            .inner
+            .agent
+            .metrics()
+            .render()
+            .map_err(Error::Metrics)?;
+        let more = TextEncoder::new()
+            .encode_to_string(&self.inner.registry.gather())
+            .map_err(Error::Metrics)?;
+        text.push_str(&more);
+        Ok(text)
+    }
+
+    /// Replaces the stack from a `RobotStack` manifest (see [`Self::set_stack_spec`]).
+    pub async fn set_stack(&self, stack: &RobotStack) -> Result<()> {
+        self.set_stack_spec(StackSpec::from_manifest(stack)?)
+            .await
+            .map(|_| ())
+    }
+
+    /// Replaces the stack at run time: new nodes get cgroups and start,
+    /// removed nodes stop and lose their cgroup, changed nodes restart, and
+    /// the adaptor placement's app map follows.
+    pub async fn set_stack_spec(&self, stack: StackSpec) -> Result<StackDiff> {
+        let _serial = self.inner.ops.lock().await;
+        let stack = with_master_uri(stack, self.master_uri().as_deref());
+        let map = app_map(&stack);
+        let diff = self.inner.agent.set_stack(stack).await?;
+        *self
+            .inner
+            .apps
+            .write()
+            .unwrap_or_else(std::sync::PoisonError::into_inner) = map;
+        self.adopt_ros_nodes();
+        Ok(diff)
+    }
+
+    /// The ROS graph (empty without ROS).
+    pub async fn graph(&self) -> Result<Graph> {
+        Ok(self
+            .inner
+            .dp
+            .as_ref()
+            .map(|d| d.graph())
+            .unwrap_or_default())
+    }
+
+    /// The node inventory.
+    pub async fn inventory(&self) -> Result<Vec<NodeStatus>> {
+        Ok(self.inner.agent.inventory())
+    }
+
+    /// Stops every node of `app` and keeps it stopped.
+    pub async fn stop_app(&self, app: &str) -> Result<()> {
+        self.inner.agent.stop_app(app).await
+    }
+
+    /// Starts `app` again.
+    pub async fn start_app(&self, app: &str) -> Result<()> {
+        self.inner.agent.start_app(app)?;
+        self.adopt_ros_nodes();
+        Ok(())
+    }
+
+    /// Runtime events from now on.
+    pub fn events(&self) -> broadcast::Receiver<RuntimeEvent> {
+        self.inner.events.subscribe()
+    }
+
+    /// Stops the glue tasks and the process monitor, then shuts the agent
+    /// down (processes keep running). The data plane stops when the last
+    /// handle is dropped.
+    pub async fn shutdown(&self) {
+        self.detach();
+        self.inner.agent.shutdown().await;
+    }
+
+    /// Aborts every background task of the runtime and the agent and stops
+    /// the process monitor, without touching processes (usable from `Drop`).
+    pub fn detach(&self) {
+        for t in lock(&self.inner.tasks).drain(..) {
+            t.abort();
+        }
+        lock(&self.inner.monitor).take();
+        self.inner.agent.detach();
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn app_map_and_master_uri_injection() {
+        let s: StackSpec = serde_json::from_str(
+            r#"{"apps":[{"name":"a","nodes":[
+                {"name":"/t","core":true,"run":{"command":"/bin/true"}},
+                {"name":"/u","run":{"command":"/bin/true","env":{"ROS_MASTER_URI":"http://x:1/"}}},
+                {"name":"/l","match":{"rosNode":"/listener"}}]}]}"#,
+        )
+        .unwrap();
+        let m = app_map(&s);
+        assert_eq!(m.get("/t"), Some(&true));
+        assert_eq!(m.get("/listener"), Some(&false));
+        let s = with_master_uri(s, Some("http://localhost:5/"));
+        let env = |i: usize| match &s.apps[0].nodes[i].source {
+            NodeSource::Run(r) => r.env.get("ROS_MASTER_URI").cloned(),
+            NodeSource::Match(_) => None,
+        };
+        assert_eq!(env(0).as_deref(), Some("http://localhost:5/"));
+        assert_eq!(env(1).as_deref(), Some("http://x:1/"), "explicit uri kept");
+    }
+}

@@ -1,0 +1,236 @@
+//! Helpers of the node-runtime tests: a guard that owns a runtime, its
+//! cgroup subtree, temp dir and outside processes (all cleaned up on drop,
+//! also on failure), ROS environment, free ports, timestamped child output.
+#![allow(dead_code)]
+
+use std::io::{BufRead, BufReader};
+use std::os::unix::process::CommandExt;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use configbot_agent::runtime::{NodeRuntime, RosOptions, RuntimeOptions};
+use configbot_agent::{AgentSettings, StackSpec};
+use configbot_cgroups::CgroupBackend;
+use configbot_dataplane::policy::PolicyConfig;
+use configbot_manifests::{Manifest, RobotStack};
+use configbot_procmon::Preference;
+use configbot_ros1::Ros1Config;
+
+use super::{nuke, unique_root, v1_backend};
+
+/// True when Debian's ROS 1 is installed; otherwise says why the test skips.
+pub fn ros_available() -> bool {
+    let ok = Path::new("/usr/bin/rostopic").exists();
+    if !ok {
+        eprintln!(
+            "SKIPPED: /usr/bin/rostopic not found; apt-get install ros-core python3-rospy python3-rostopic"
+        );
+    }
+    ok
+}
+
+/// A free TCP port, never 11311.
+pub fn free_port() -> u16 {
+    loop {
+        let l = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+        let p = l.local_addr().unwrap().port();
+        if p != 11311 {
+            return p;
+        }
+    }
+}
+
+pub fn script(name: &str) -> String {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/scripts")
+        .join(name)
+        .to_string_lossy()
+        .into_owned()
+}
+
+/// A child in its own process group, killed group-wide on drop; stdout
+/// lines are kept with their arrival times.
+pub struct Proc {
+    pub child: Child,
+    pub lines: Arc<Mutex<Vec<(Instant, String)>>>,
+}
+
+impl Proc {
+    pub fn spawn(mut c: Command) -> Proc {
+        c.stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .stdin(Stdio::null())
+            .process_group(0);
+        let mut child = c.spawn().unwrap();
+        let lines = Arc::new(Mutex::new(Vec::new()));
+        let out = child.stdout.take().unwrap();
+        let l = lines.clone();
+        std::thread::spawn(move || {
+            for line in BufReader::new(out).lines().map_while(Result::ok) {
+                l.lock().unwrap().push((Instant::now(), line));
+            }
+        });
+        Proc { child, lines }
+    }
+
+    pub fn pid(&self) -> u32 {
+        self.child.id()
+    }
+
+    /// "msg" lines that arrived in [from, to).
+    pub fn count_between(&self, from: Instant, to: Instant) -> usize {
+        self.lines
+            .lock()
+            .unwrap()
+            .iter()
+            .filter(|(t, l)| l == "msg" && *t >= from && *t < to)
+            .count()
+    }
+}
+
+impl Drop for Proc {
+    fn drop(&mut self) {
+        let pgid = self.child.id() as i32;
+        #[allow(unsafe_code)]
+        // SAFETY: kill(2) with plain integers; touches no memory of ours.
+        unsafe {
+            libc::kill(-pgid, libc::SIGKILL);
+        }
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+/// Owns one runtime under test with everything it created.
+pub struct RtEnv {
+    pub root: String,
+    pub dir: tempfile::TempDir,
+    pub master_uri: String,
+    pub rt: Option<NodeRuntime>,
+    pub procs: Vec<Proc>,
+}
+
+impl RtEnv {
+    pub fn new() -> Self {
+        Self {
+            root: unique_root(),
+            dir: tempfile::tempdir().unwrap(),
+            master_uri: format!("http://localhost:{}/", free_port()),
+            rt: None,
+            procs: Vec::new(),
+        }
+    }
+
+    pub fn path(&self, name: &str) -> PathBuf {
+        self.dir.path().join(name)
+    }
+
+    pub fn settings(&self) -> AgentSettings {
+        AgentSettings {
+            cgroup_root: configbot_cgroups::SubtreeRoot::new(&self.root).unwrap(),
+            state_file: self.path("state.json"),
+            log_dir: self.path("logs"),
+            stop_timeout: Duration::from_millis(1500),
+            backoff_initial: Duration::from_millis(100),
+            backoff_max: Duration::from_millis(1000),
+            scan_interval: Duration::from_millis(200),
+            ..AgentSettings::default()
+        }
+    }
+
+    pub fn ros_options(&self) -> RosOptions {
+        RosOptions {
+            config: Ros1Config {
+                master_uri: self.master_uri.clone(),
+                bind_host: "127.0.0.1".into(),
+                refresh_period: Duration::from_secs(5),
+                ..Ros1Config::default()
+            },
+            db_path: self.path("ros1.db"),
+            policy: PolicyConfig::default(),
+        }
+    }
+
+    pub async fn start(
+        &mut self,
+        ros: bool,
+        monitor: Option<Preference>,
+        stack: StackSpec,
+    ) -> NodeRuntime {
+        let opts = RuntimeOptions {
+            settings: self.settings(),
+            ros: ros.then(|| self.ros_options()),
+            monitor,
+        };
+        let rt = NodeRuntime::start(Box::new(v1_backend(&self.root)), opts, stack)
+            .await
+            .unwrap();
+        self.rt = Some(rt.clone());
+        rt
+    }
+
+    /// A ROS tool or script against this runtime's master.
+    pub fn ros_command(&self, program: &str) -> Command {
+        let mut c = Command::new(program);
+        c.env("ROS_MASTER_URI", &self.master_uri)
+            .env("ROS_HOSTNAME", "localhost")
+            .env("ROS_HOME", self.path("ros"))
+            .env("ROS_LOG_DIR", self.path("ros/log"))
+            .env("PYTHONUNBUFFERED", "1");
+        c
+    }
+
+    /// Starts a rospy script outside the agent (e.g. a node to adopt).
+    pub fn script(&mut self, name: &str, args: &[&str]) -> usize {
+        let mut c = self.ros_command("/usr/bin/python3");
+        c.arg(script(name)).args(args);
+        self.procs.push(Proc::spawn(c));
+        self.procs.len() - 1
+    }
+
+    /// Env for `run` nodes that are rospy scripts (the master URI is injected
+    /// by the runtime).
+    pub fn ros_env_yaml(&self) -> String {
+        format!(
+            "{{ROS_HOSTNAME: localhost, ROS_HOME: {0}, ROS_LOG_DIR: {0}/log, PYTHONUNBUFFERED: '1'}}",
+            self.path("ros").display()
+        )
+    }
+}
+
+impl Drop for RtEnv {
+    fn drop(&mut self) {
+        if let Some(rt) = self.rt.take() {
+            rt.detach();
+        }
+        self.procs.clear();
+        nuke(&self.root);
+        if !std::thread::panicking() {
+            assert!(
+                v1_backend(&self.root).nodes().unwrap().is_empty(),
+                "cgroups left behind under {}",
+                self.root
+            );
+        }
+    }
+}
+
+/// Parses one RobotStack manifest.
+pub fn robot_stack(yaml: &str) -> RobotStack {
+    let docs = configbot_manifests::load("test.yaml", yaml).unwrap_or_else(|e| panic!("{e}"));
+    match &docs[0].manifest {
+        Manifest::RobotStack(s) => s.clone(),
+        Manifest::PerformanceSpec(_) => panic!("not a RobotStack"),
+    }
+}
+
+/// Waits (async) until `cond` holds.
+pub async fn eventually<F: FnMut() -> bool>(what: &str, timeout: Duration, mut cond: F) {
+    let end = Instant::now() + timeout;
+    while !cond() {
+        assert!(Instant::now() < end, "timed out after {timeout:?}: {what}");
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+}

@@ -1,0 +1,626 @@
+//! The node runtime end to end on real cgroups, real processes, the real
+//! process monitor and real rospy nodes against the agent's own ROS master
+//! (root needed; ROS tests skip when ROS is not installed).
+
+mod common;
+
+use std::time::{Duration, Instant};
+
+use configbot_agent::measure::{MeasureRequest, Probe};
+use configbot_agent::{AgentEvent, RuntimeEvent, StackSpec};
+use configbot_manifests::{AdaptorRate, ResourceConfig};
+use configbot_procmon::{MonitorKind, Preference};
+
+use common::node;
+use common::rt::{RtEnv, eventually, robot_stack, ros_available};
+
+const T: Duration = Duration::from_secs(40);
+
+fn graph_pid(rt: &configbot_agent::NodeRuntime, name: &str) -> Option<u32> {
+    rt.data_plane()?.graph().nodes.get(name)?.pid
+}
+
+fn cgroup_pids(rt: &configbot_agent::NodeRuntime, n: &str) -> Vec<u32> {
+    rt.agent().backend().pids(&node(n)).unwrap_or_default()
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn ros_nodes_are_adopted_limited_adapted_and_measured() {
+    if !ros_available() {
+        return;
+    }
+    let mut env = RtEnv::new();
+    let rt = env
+        .start(true, Some(Preference::Auto), StackSpec::default())
+        .await;
+    let mut events = rt.events();
+    let stack = robot_stack(&format!(
+        r#"
+apiVersion: configbot.dev/v1alpha1
+kind: RobotStack
+metadata: {{name: bot}}
+spec:
+  apps:
+    - name: nav
+      core: true
+      nodes:
+        - name: /talker
+          run:
+            command: /usr/bin/python3
+            args: ["{talker}", "talker", "/chatter", "30"]
+            env: {env}
+    - name: det
+      nodes:
+        - name: /listener
+          match: {{rosNode: /listener}}
+        - name: /burner
+          run: {{command: /usr/bin/python3, args: ["-c", "while True: pass"]}}
+"#,
+        talker = common::rt::script("talker.py"),
+        env = env.ros_env_yaml(),
+    ));
+    rt.set_stack(&stack).await.unwrap();
+    // Limit the busy node at once (keeps the shared machine free).
+    let cfg = ResourceConfig {
+        cpu: [("/burner".to_string(), 0.1)].into(),
+        cpu_period_micros: Some(20_000),
+        adaptors: vec![AdaptorRate {
+            topic: "/chatter".into(),
+            subscriber: "/listener".into(),
+            rate_hz: 10.0,
+        }],
+    };
+    rt.apply(&cfg).await.unwrap();
+    // The listener starts outside the agent, after the stack made it
+    // non-core: the placement gives it an adaptor when it subscribes.
+    let listener = env.script("listener.py", &["listener", "/chatter"]);
+    let listener_pid = env.procs[listener].pid();
+
+    eventually("both ROS nodes in their cgroups with graph pids", T, || {
+        let t = graph_pid(&rt, "/talker");
+        let l = graph_pid(&rt, "/listener");
+        t.is_some_and(|p| cgroup_pids(&rt, "/talker").contains(&p))
+            && l == Some(listener_pid)
+            && cgroup_pids(&rt, "/listener").contains(&listener_pid)
+    })
+    .await;
+    // The event stream saw the graph change and the adoption by ROS name.
+    let (mut graph_listener, mut adopted) = (false, false);
+    while let Ok(ev) = events.try_recv() {
+        match ev {
+            RuntimeEvent::GraphChanged { events } => {
+                graph_listener |= events.iter().any(|g| {
+                    matches!(g, configbot_dataplane::GraphEvent::NodeAdded(n)
+                        | configbot_dataplane::GraphEvent::NodeChanged(n) if n.name == "/listener")
+                });
+            }
+            RuntimeEvent::Agent(AgentEvent::NodeAdopted { node, pids }) => {
+                adopted |= node.as_str() == "/listener" && pids.contains(&listener_pid);
+            }
+            _ => {}
+        }
+    }
+    assert!(
+        graph_listener && adopted,
+        "graph {graph_listener} adopted {adopted}"
+    );
+    let inv = rt.inventory().await.unwrap();
+    let talker = inv.iter().find(|n| n.name.as_str() == "/talker").unwrap();
+    assert_eq!(talker.main_pid, graph_pid(&rt, "/talker"), "{talker:?}");
+    let edge_adapted = || {
+        rt.data_plane()
+            .unwrap()
+            .adaptor_counters()
+            .iter()
+            .any(|(e, c)| e.topic == "/chatter" && e.subscriber == "/listener" && c.forwarded > 0)
+    };
+    eventually("messages through the adaptor", T, edge_adapted).await;
+
+    let req = MeasureRequest {
+        probes: vec![
+            Probe::TopicRate {
+                topic: "/chatter".into(),
+                subscriber: None,
+            },
+            Probe::TopicRate {
+                topic: "/chatter".into(),
+                subscriber: Some("/listener".into()),
+            },
+            Probe::CpuUsage {
+                node: "/burner".into(),
+            },
+            Probe::CpuUsage {
+                node: "/talker".into(),
+            },
+            Probe::TopicRate {
+                topic: "/nobody_publishes".into(),
+                subscriber: None,
+            },
+        ],
+        duration_ms: 4000,
+        sub_window_ms: 1000,
+    };
+    let t0 = Instant::now();
+    let report = rt.measure(&req).await.unwrap();
+    let received =
+        env.procs[listener].count_between(t0, Instant::now()) as f64 / t0.elapsed().as_secs_f64();
+    eprintln!("report {report:?}\nlistener's own count {received:.1} Hz");
+    assert_eq!(report.series.len(), 5);
+    for s in &report.series {
+        assert_eq!(s.values.len(), 4, "{s:?}");
+    }
+    let [topic, sub, burner, talker_cpu, silent] = &report.series[..] else {
+        unreachable!()
+    };
+    assert!((27.0..=33.0).contains(&topic.mean), "topic {topic:?}");
+    assert!((8.5..=11.5).contains(&sub.mean), "subscriber {sub:?}");
+    // per sub-window: whole-message counts over ~1 s, so ±3 at 30 Hz
+    assert!(
+        topic.values.iter().all(|v| (24.0..=36.0).contains(v)),
+        "{topic:?}"
+    );
+    assert!(
+        sub.values.iter().all(|v| (7.0..=13.0).contains(v)),
+        "{sub:?}"
+    );
+    assert!(
+        (7.0..=13.0).contains(&received),
+        "listener got {received} Hz"
+    );
+    assert!((0.06..=0.14).contains(&burner.mean), "burner {burner:?}");
+    assert!(burner.values.iter().all(|v| *v <= 0.16), "{burner:?}");
+    assert!((0.0..0.5).contains(&talker_cpu.mean), "{talker_cpu:?}");
+    assert_eq!(silent.mean, 0.0, "a topic without messages is 0 Hz");
+
+    // A config without the edge puts it back to pass-through.
+    rt.apply(&ResourceConfig {
+        cpu: [("/burner".to_string(), 0.1)].into(),
+        ..ResourceConfig::default()
+    })
+    .await
+    .unwrap();
+    let adaptors = rt.data_plane().unwrap().adaptors();
+    assert!(
+        adaptors.values().all(|s| s.rate_hz.is_none()),
+        "{adaptors:?}"
+    );
+    let r = rt
+        .measure(&MeasureRequest {
+            probes: vec![req.probes[1].clone()],
+            duration_ms: 2000,
+            sub_window_ms: 1000,
+        })
+        .await
+        .unwrap();
+    assert!((25.0..=35.0).contains(&r.series[0].mean), "{r:?}");
+
+    // Unknown node: an error naming it.
+    let e = rt
+        .measure(&MeasureRequest {
+            probes: vec![Probe::CpuUsage {
+                node: "/ghost".into(),
+            }],
+            duration_ms: 100,
+            sub_window_ms: 100,
+        })
+        .await
+        .unwrap_err();
+    assert!(e.to_string().contains("/ghost"), "{e}");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn set_stack_adds_removes_and_restarts_nodes_at_run_time() {
+    let mut env = RtEnv::new();
+    let one = |extra: &str| {
+        robot_stack(&format!(
+            r#"
+apiVersion: configbot.dev/v1alpha1
+kind: RobotStack
+metadata: {{name: bot}}
+spec:
+  apps:
+    - name: a
+      nodes:
+        - name: /one
+          run: {{command: /bin/sleep, args: ["300"]}}
+{extra}"#
+        ))
+    };
+    let rt = env.start(false, None, StackSpec::default()).await;
+    rt.set_stack(&one("")).await.unwrap();
+    eventually("/one running", T, || cgroup_pids(&rt, "/one").len() == 1).await;
+    let one_pid = cgroup_pids(&rt, "/one")[0];
+
+    rt.set_stack(&one(
+        "        - name: /two\n          run: {command: /bin/sleep, args: [\"301\"]}",
+    ))
+    .await
+    .unwrap();
+    eventually("/two running", T, || cgroup_pids(&rt, "/two").len() == 1).await;
+    assert_eq!(cgroup_pids(&rt, "/one"), [one_pid], "/one untouched");
+    let two_pid = cgroup_pids(&rt, "/two")[0];
+
+    // /two's command changes: restarted with a new process.
+    rt.set_stack(&one(
+        "        - name: /two\n          run: {command: /bin/sleep, args: [\"302\"]}",
+    ))
+    .await
+    .unwrap();
+    eventually("/two restarted", T, || {
+        let p = cgroup_pids(&rt, "/two");
+        p.len() == 1 && p[0] != two_pid
+    })
+    .await;
+    let cmdline =
+        std::fs::read_to_string(format!("/proc/{}/cmdline", cgroup_pids(&rt, "/two")[0])).unwrap();
+    assert!(cmdline.contains("302"), "{cmdline:?}");
+    // /one removed: stopped and its cgroup gone.
+    let only_two = robot_stack(
+        r#"
+apiVersion: configbot.dev/v1alpha1
+kind: RobotStack
+metadata: {name: bot}
+spec:
+  apps:
+    - name: a
+      nodes:
+        - name: /two
+          run: {command: /bin/sleep, args: ["302"]}
+"#,
+    );
+    rt.set_stack(&only_two).await.unwrap();
+    assert!(
+        !rt.agent().backend().exists(&node("/one")),
+        "cgroup of /one left"
+    );
+    eventually("/one's process gone", T, || {
+        std::fs::read_to_string(format!("/proc/{one_pid}/stat")).map_or(true, |s| s.contains(") Z"))
+    })
+    .await;
+    let names: Vec<String> = rt
+        .inventory()
+        .await
+        .unwrap()
+        .into_iter()
+        .map(|n| n.name.as_str().to_owned())
+        .collect();
+    assert_eq!(names, ["/two"]);
+    // the applied stack survives in the state file for the next start
+    let state = std::fs::read_to_string(env.path("state.json")).unwrap();
+    assert!(
+        state.contains("\"/two\"") && !state.contains("\"/one\""),
+        "{state}"
+    );
+}
+
+async fn exec_event_latency(monitor: Preference, program: &str, args: &[&str]) -> (u64, u64) {
+    let mut env = RtEnv::new();
+    let rt = env.start(false, Some(monitor), StackSpec::default()).await;
+    let mut rx = rt.events();
+    let before = configbot_agent_unix_ms();
+    let mut child = std::process::Command::new(program)
+        .args(args)
+        .spawn()
+        .unwrap();
+    let pid = child.id();
+    let spawned = Instant::now();
+    let ev = tokio::time::timeout(Duration::from_secs(1), async {
+        loop {
+            match rx.recv().await {
+                Ok(RuntimeEvent::ProcessExec {
+                    pid: p,
+                    at_unix_ms,
+                    seen_unix_ms,
+                    ..
+                }) if p == pid => return (at_unix_ms, seen_unix_ms),
+                Ok(_) | Err(tokio::sync::broadcast::error::RecvError::Lagged(_)) => {}
+                Err(e) => panic!("{e}"),
+            }
+        }
+    })
+    .await;
+    let waited = spawned.elapsed();
+    let _ = child.kill();
+    let _ = child.wait();
+    let (at, seen) = ev.unwrap_or_else(|_| panic!("no exec event for {pid} within 1 s"));
+    tokio::time::timeout(Duration::from_secs(2), async {
+        loop {
+            match rx.recv().await {
+                Ok(RuntimeEvent::ProcessExit { pid: p, .. }) if p == pid => return,
+                Ok(_) | Err(tokio::sync::broadcast::error::RecvError::Lagged(_)) => {}
+                Err(e) => panic!("{e}"),
+            }
+        }
+    })
+    .await
+    .unwrap_or_else(|_| panic!("no exit event for {pid}"));
+    eprintln!(
+        "{}: exec at +{} ms, seen +{} ms after spawn start, event after {waited:?}",
+        rt.monitor_status(),
+        at.saturating_sub(before),
+        seen.saturating_sub(before)
+    );
+    assert!(
+        at + 5 >= before && at <= seen,
+        "at {at} seen {seen} before {before}"
+    );
+    (at - before.min(at), seen - before.min(seen))
+}
+
+fn configbot_agent_unix_ms() -> u64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .unwrap()
+        .as_millis() as u64
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn spawned_process_is_an_exec_event_within_a_second() {
+    exec_event_latency(Preference::Auto, "/bin/true", &[]).await;
+    // The fallback: a /proc scan (250 ms) sees a process that lives a while.
+    exec_event_latency(
+        Preference::Only(MonitorKind::ProcScan),
+        "/bin/sleep",
+        &["2"],
+    )
+    .await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn http_api_and_client_round_trip_over_the_unix_socket() {
+    if !ros_available() {
+        return;
+    }
+    let mut env = RtEnv::new();
+    let rt = env
+        .start(true, Some(Preference::Auto), StackSpec::default())
+        .await;
+    let sock = env.path("agent.sock");
+    let listener = configbot_agent::api::bind_unix(&sock).unwrap();
+    let server = tokio::spawn(configbot_agent::api::serve_unix(rt.clone(), listener));
+    let client = configbot_agent::client::AgentClient::unix(&sock);
+    let mut events = client.events().await.unwrap();
+
+    let stack = robot_stack(&format!(
+        r#"
+apiVersion: configbot.dev/v1alpha1
+kind: RobotStack
+metadata: {{name: bot}}
+spec:
+  apps:
+    - name: cam
+      core: true
+      nodes:
+        - name: /camera
+          run:
+            command: /usr/bin/python3
+            args: ["{talker}", "camera", "/image", "20"]
+            env: {env}
+"#,
+        talker = common::rt::script("talker.py"),
+        env = env.ros_env_yaml(),
+    ));
+    client.set_stack(&stack).await.unwrap();
+    let mut camera_pid = None;
+    let end = Instant::now() + T;
+    while camera_pid.is_none() {
+        assert!(Instant::now() < end, "camera never appeared in the graph");
+        let g = client.graph().await.unwrap();
+        camera_pid = g.nodes.get("/camera").and_then(|n| n.pid);
+        if g.topics
+            .get("/image")
+            .is_none_or(|t| t.publishers.is_empty())
+        {
+            camera_pid = None;
+        }
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    let inv = client.inventory().await.unwrap();
+    assert_eq!(inv.len(), 1);
+    assert!(inv[0].pids.contains(&camera_pid.unwrap()), "{inv:?}");
+
+    client
+        .apply(&ResourceConfig {
+            cpu: [("/camera".to_string(), 0.5)].into(),
+            cpu_period_micros: Some(50_000),
+            adaptors: vec![],
+        })
+        .await
+        .unwrap();
+    let max = rt.agent().backend().cpu_max(&node("/camera")).unwrap();
+    assert_eq!((max.quota_us, max.period_us), (Some(25_000), 50_000));
+    let err = client
+        .apply(&ResourceConfig {
+            cpu: [("/ghost".to_string(), 0.5)].into(),
+            ..ResourceConfig::default()
+        })
+        .await
+        .unwrap_err();
+    assert!(err.to_string().contains("/ghost"), "{err}");
+
+    let report = client
+        .measure(&MeasureRequest {
+            probes: vec![
+                Probe::TopicRate {
+                    topic: "/image".into(),
+                    subscriber: None,
+                },
+                Probe::CpuUsage {
+                    node: "/camera".into(),
+                },
+            ],
+            duration_ms: 3000,
+            sub_window_ms: 1000,
+        })
+        .await
+        .unwrap();
+    eprintln!("{report:?}");
+    assert!((18.0..=22.0).contains(&report.series[0].mean), "{report:?}");
+    assert_eq!(report.series[0].values.len(), 3);
+    assert!(report.series[1].mean <= 0.5 + 0.05, "{report:?}");
+
+    // The runtime's metrics carry the measured topic rate and the monitor.
+    let metrics = {
+        let s = tokio::net::UnixStream::connect(&sock)
+            .await
+            .unwrap()
+            .into_std()
+            .unwrap();
+        s.set_nonblocking(false).unwrap();
+        tokio::task::spawn_blocking(move || common::http(s, "GET", "/metrics", None, None))
+            .await
+            .unwrap()
+    };
+    assert_eq!(metrics.0, 200);
+    assert!(
+        metrics
+            .1
+            .contains("configbot_agent_topic_rate_hz{subscriber=\"\",topic=\"/image\"}"),
+        "{}",
+        metrics.1
+    );
+    assert!(
+        metrics
+            .1
+            .contains("configbot_agent_active_monitor{monitor=\"")
+    );
+
+    client.stop_app("cam").await.unwrap();
+    let end = Instant::now() + T;
+    loop {
+        let ev = tokio::time::timeout(end - Instant::now(), events.recv())
+            .await
+            .expect("no appStopped event through the client")
+            .unwrap();
+        if matches!(&ev, RuntimeEvent::Agent(AgentEvent::AppStopped { app }) if app == "cam") {
+            break;
+        }
+    }
+    assert!(
+        client
+            .stop_app("nope")
+            .await
+            .unwrap_err()
+            .to_string()
+            .contains("404")
+    );
+    server.abort();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_binary_runs_the_full_runtime_from_a_robot_stack_yaml() {
+    if !ros_available() {
+        return;
+    }
+    let mut env = RtEnv::new();
+    let yaml = format!(
+        r#"apiVersion: configbot.dev/v1alpha1
+kind: RobotStack
+metadata: {{name: bot}}
+spec:
+  apps:
+    - name: nav
+      core: true
+      nodes:
+        - name: /odom
+          run:
+            command: /usr/bin/python3
+            args: ["{talker}", "odom", "/odom", "10"]
+            env: {env}
+"#,
+        talker = common::rt::script("talker.py"),
+        env = env.ros_env_yaml(),
+    );
+    let stack = env.path("stack.yaml");
+    std::fs::write(&stack, yaml).unwrap();
+    let sock = env.path("agent.sock");
+    let mut cmd = std::process::Command::new(env!("CARGO_BIN_EXE_configbot-agent"));
+    cmd.arg("--stack")
+        .arg(&stack)
+        .args(["--cgroup-root", &env.root])
+        .arg("--state-file")
+        .arg(env.path("state.json"))
+        .arg("--log-dir")
+        .arg(env.path("logs"))
+        .arg("--socket")
+        .arg(&sock)
+        .args([
+            "--ros-master-uri",
+            &env.master_uri,
+            "--ros-bind-host",
+            "127.0.0.1",
+        ])
+        .arg("--ros-db")
+        .arg(env.path("ros1.db"))
+        .args(["--monitor", "auto"]);
+    env.procs.push(common::rt::Proc::spawn(cmd));
+    let client = configbot_agent::client::AgentClient::unix(&sock);
+    let end = Instant::now() + T;
+    let odom_pid = loop {
+        assert!(
+            Instant::now() < end,
+            "/odom never registered with the agent's master"
+        );
+        if let Ok(g) = client.graph().await
+            && let Some(pid) = g.nodes.get("/odom").and_then(|n| n.pid)
+        {
+            break pid;
+        }
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    };
+    let inv = client.inventory().await.unwrap();
+    assert!(inv[0].pids.contains(&odom_pid), "{inv:?}");
+    // Real ROS tools see the agent as the master.
+    let out = env
+        .ros_command("/usr/bin/rostopic")
+        .args(["list"])
+        .output()
+        .unwrap();
+    assert!(
+        String::from_utf8_lossy(&out.stdout).contains("/odom"),
+        "{out:?}"
+    );
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn client_over_tcp_needs_the_token() {
+    let mut env = common::Env::new();
+    let agent = env
+        .start(common::stack_json(
+            r#"{"apps":[{"name":"a","nodes":[{"name":"/s","run":{"command":"/bin/sleep","args":["300"]}}]}]}"#,
+        ))
+        .await;
+    let rt = configbot_agent::NodeRuntime::with_agent(agent).unwrap();
+    let l = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let addr = l.local_addr().unwrap().to_string();
+    let server = tokio::spawn(configbot_agent::api::serve_tcp(rt, l, "t0ken".into()));
+    let good = configbot_agent::client::AgentClient::tcp(addr.clone(), "t0ken");
+    let inv = good.inventory().await.unwrap();
+    assert_eq!(inv[0].name.as_str(), "/s");
+    assert_eq!(
+        good.graph().await.unwrap(),
+        configbot_dataplane::Graph::default()
+    );
+    let e = good
+        .measure(&MeasureRequest {
+            probes: vec![Probe::TopicRate {
+                topic: "/x".into(),
+                subscriber: None,
+            }],
+            duration_ms: 100,
+            sub_window_ms: 100,
+        })
+        .await
+        .unwrap_err();
+    assert!(e.to_string().contains("ROS data plane"), "{e}");
+    let bad = configbot_agent::client::AgentClient::tcp(addr, "wrong");
+    let e = bad.inventory().await.unwrap_err();
+    assert!(
+        matches!(
+            e,
+            configbot_agent::client::ClientError::Status { status: 401, .. }
+        ),
+        "{e}"
+    );
+    server.abort();
+}
