@@ -7,9 +7,9 @@ use std::io::Read;
 use std::path::Path;
 use std::process::ExitCode;
 
-use clap::Args;
 use crate::api::selector::Selector;
 use crate::client::{Client, ClientError, path};
+use clap::Args;
 use configbot_manifests::{Kind, Loaded, ManifestError, ManifestErrors};
 use hyper::Method;
 

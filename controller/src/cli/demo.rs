@@ -5,9 +5,9 @@
 use std::process::ExitCode;
 use std::time::Duration;
 
-use clap::Args;
 use crate::client::{Client, Endpoint, path};
 use crate::server::{Server, ServerConfig};
+use clap::Args;
 use configbot_manifests::Kind;
 
 /// The example stacks, embedded so the demo runs from any directory.
@@ -92,10 +92,7 @@ pub async fn run(a: &DemoArgs) -> anyhow::Result<ExitCode> {
             .collect();
         print!(
             "{}",
-            crate::table::render(
-                &crate::table::headers(kind, false, false),
-                &rows
-            )
+            crate::table::render(&crate::table::headers(kind, false, false), &rows)
         );
     }
     println!("\n==> configbot describe pspec basic-nav");

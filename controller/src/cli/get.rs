@@ -2,9 +2,9 @@
 
 use std::process::ExitCode;
 
-use clap::{Args, ValueEnum};
 use crate::client::{Client, path};
 use crate::table;
+use clap::{Args, ValueEnum};
 use configbot_manifests::Kind;
 use hyper::Method;
 use serde_json::Value;

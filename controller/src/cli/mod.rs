@@ -6,8 +6,8 @@ mod get;
 
 use std::path::PathBuf;
 
-use clap::{Args, Parser, Subcommand};
 use crate::client::{Client, Endpoint};
+use clap::{Args, Parser, Subcommand};
 
 const AFTER_HELP: &str = "\
 Examples:
@@ -62,6 +62,12 @@ enum Command {
     Validate(ValidateArgs),
     /// Start a private control plane, apply the example stacks and show their status.
     Demo(demo::DemoArgs),
+    /// Run the node agent alone on a robot: per-node cgroups, process
+    /// supervision, the process monitor and the robot's ROS 1 master.
+    #[command(
+        after_help = "The control plane drives it over its API (Unix socket, or TCP with --token).\n\nExamples:\n  configbot agent --stack stack.yaml                  # supervise a RobotStack\n  configbot agent --ros-master-uri http://localhost:11311/ --tcp 0.0.0.0:9443 --token \"$TOKEN\""
+    )]
+    Agent(configbot_agent::cli::AgentArgs),
 }
 
 #[derive(Debug, Args)]
@@ -178,6 +184,10 @@ async fn run(cli: Cli) -> anyhow::Result<std::process::ExitCode> {
             }
         },
         Command::Demo(a) => demo::run(a).await,
+        Command::Agent(a) => {
+            configbot_agent::cli::run(a.clone()).await?;
+            Ok(ExitCode::SUCCESS)
+        }
     }
 }
 
