@@ -26,9 +26,9 @@ fn measure(p: &Proc, secs: f64) -> (f64, Vec<(u64, f64, usize)>) {
 /// Parses the last "average rate: X" of `rostopic hz` output.
 fn hz_of(out: &str) -> Option<f64> {
     out.lines()
+        .rev()
         .filter_map(|l| l.trim().strip_prefix("average rate:"))
-        .filter_map(|v| v.trim().parse().ok())
-        .last()
+        .find_map(|v| v.trim().parse().ok())
 }
 
 fn publisher_seen_by_real_tools(kind: MasterKind) {
