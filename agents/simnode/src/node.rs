@@ -50,7 +50,7 @@ fn sleep_until(until: Instant, stop: &AtomicBool) {
 /// A periodic publisher: work, publish, wait for the next tick; a tick
 /// missed by more than a period is dropped (no catch-up burst), so a
 /// CPU-starved publisher's rate falls, as a driver's would.
-fn publisher_loop(spec: PublishSpec, topic: Arc<Topic>, cost: Duration, stop: Arc<AtomicBool>) {
+pub fn publisher_loop(spec: PublishSpec, topic: Arc<Topic>, cost: Duration, stop: Arc<AtomicBool>) {
     let period = Duration::from_secs_f64(1.0 / spec.hz);
     let mut next = Instant::now();
     while !stop.load(Ordering::Relaxed) {
