@@ -189,3 +189,38 @@ fn rospy_publisher_feeds_a_callback_with_rosmaster() {
 fn rospy_publisher_feeds_a_callback_with_the_configbot_master() {
     rospy_feeds_a_callback(MasterKind::Configbot);
 }
+
+#[test]
+fn adaptor_inserted_live_by_the_configbot_master_limits_a_callback() {
+    if !ros_available() {
+        return;
+    }
+    let m = Master::start(MasterKind::Configbot);
+    let env = &m.env;
+    let t = |s: &str| format!("/{}", unique(s));
+    let (scan, cmd, nav) = (t("scan"), t("cmd_vel"), t("navigation"));
+    let spec = format!("{scan}:30:512");
+    let _lidar = env.simnode(&["--name", &t("lidar"), "--publish", &spec]);
+    let on = format!("{scan}->{cmd}:cost-ms=1");
+    let _nav = env.simnode(&["--name", &nav, "--on", &on]);
+    let listener = env.script("listen.py", &[&unique("listener"), &cmd]);
+    wait_msgs(&listener, 10, "callback output");
+    let (direct, _) = measure(&listener, 2.0);
+    // The master points the simnode at its adaptor (publisherUpdate); the
+    // simnode drops the direct connection and takes 10 of 30 Hz.
+    m.set_adaptor(&scan, &nav, Some(10.0));
+    std::thread::sleep(Duration::from_secs(2));
+    let (adapted, _) = measure(&listener, 3.0);
+    m.set_adaptor(&scan, &nav, None);
+    std::thread::sleep(Duration::from_secs(2));
+    let (back, _) = measure(&listener, 2.0);
+    eprintln!(
+        "callback output: direct {direct:.1} Hz, adapted to 10: {adapted:.1} Hz, removed: {back:.1} Hz"
+    );
+    assert!(direct >= 25.0, "direct {direct:.1} of 30");
+    assert!(
+        (8.0..=12.0).contains(&adapted),
+        "adapted {adapted:.1} of 10"
+    );
+    assert!(back >= 25.0, "after removal {back:.1} of 30");
+}

@@ -86,6 +86,26 @@ impl std::fmt::Debug for Master {
 }
 
 impl Master {
+    /// Sets (or with `None` removes) the configbot master's adaptor on the
+    /// edge `topic` → `subscriber`; panics on Debian's rosmaster.
+    pub fn set_adaptor(&self, topic: &str, subscriber: &str, rate_hz: Option<f64>) {
+        use configbot_dataplane::{AdaptorSetting, DataPlane, EdgeId};
+        let (rt, dp) = self
+            ._configbot
+            .as_ref()
+            .expect("adaptors need the configbot master");
+        let _guard = rt.enter();
+        let edge = EdgeId {
+            topic: topic.into(),
+            subscriber: subscriber.into(),
+        };
+        match rate_hz {
+            Some(r) => dp.set_adaptor(&edge, AdaptorSetting { rate_hz: Some(r) }),
+            None => dp.remove_adaptor(&edge),
+        }
+        .unwrap();
+    }
+
     pub fn start(kind: MasterKind) -> Master {
         let dir = tempfile::tempdir().unwrap();
         let port = free_port();
