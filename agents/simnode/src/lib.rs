@@ -238,6 +238,41 @@ mod tests {
         ));
     }
 
+    #[derive(Debug, Parser)]
+    struct Main {
+        #[command(subcommand)]
+        cmd: Cmd,
+    }
+
+    #[derive(Debug, clap::Subcommand)]
+    enum Cmd {
+        /// Run a simulated ROS 1 node.
+        Simnode(SimnodeArgs),
+    }
+
+    #[test]
+    fn long_help_teaches_when_used_as_a_subcommand() {
+        use clap::CommandFactory;
+        let mut c = Main::command();
+        let sub = c.find_subcommand_mut("simnode").unwrap();
+        let help = sub.render_long_help().to_string();
+        assert!(
+            help.contains("Examples:") && help.contains("--thread-per-message"),
+            "{help}"
+        );
+        let m = Main::try_parse_from([
+            "configbot",
+            "simnode",
+            "--name",
+            "/a",
+            "--publish",
+            "/t:1:16",
+        ])
+        .unwrap();
+        let Cmd::Simnode(a) = m.cmd;
+        assert_eq!(a.publish.len(), 1);
+    }
+
     #[test]
     fn picks_the_advertised_host() {
         assert_eq!(
