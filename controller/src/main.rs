@@ -1,8 +1,8 @@
 //! The `configbot` command: control plane (`serve`), client commands
 //! (`apply`, `get`, `describe`, `delete`), offline `validate`, and `demo`.
-
-mod cli;
+//! The commands live in the library (`configbot_controller::cli`) so the
+//! end-to-end tests build and run exactly this program.
 
 fn main() -> std::process::ExitCode {
-    cli::main()
+    configbot_controller::cli::main()
 }

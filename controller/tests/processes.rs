@@ -267,7 +267,7 @@ fn stock_kubectl_works() {
         )
     };
     let file = examples().join("basic-nav.yaml");
-    let (ok, out) = k(&["apply", "--validate=false", "-f", file.to_str().unwrap()]);
+    let (ok, out) = k(&["apply", "-f", file.to_str().unwrap()]);
     assert!(ok, "{out}");
     assert!(
         out.contains("robotstack.configbot.dev/basic-nav created"),
@@ -286,6 +286,17 @@ fn stock_kubectl_works() {
         );
         std::thread::sleep(Duration::from_millis(100));
     }
+    // Validation is on (kubectl reads /openapi/v3 and leaves it to the
+    // server): an unknown field is refused and named.
+    let bad = dir.path().join("bad.yaml");
+    std::fs::write(
+        &bad,
+        "apiVersion: configbot.dev/v1alpha1\nkind: RobotStack\nmetadata: {name: bad}\n\
+         spec:\n  apps:\n    - name: a\n      nodes: [{name: /n, run: {command: x}, colour: red}]\n",
+    )
+    .unwrap();
+    let (ok, out) = k(&["apply", "-f", bad.to_str().unwrap()]);
+    assert!(!ok && out.contains("colour"), "{out}");
     let (ok, out) = k(&["get", "pspec", "basic-nav", "-o", "yaml"]);
     assert!(ok && out.contains("stackRef"), "{out}");
     let (ok, out) = k(&["describe", "rs", "basic-nav"]);

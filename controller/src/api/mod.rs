@@ -3,6 +3,7 @@
 //! default; on TCP only over TLS with a bearer token.
 
 pub mod discovery;
+pub mod openapi;
 pub mod resources;
 pub mod selector;
 pub mod status;
@@ -44,6 +45,11 @@ pub fn router(state: AppState) -> Router {
         .route("/api/v1/events", get(r::events))
         .route("/api/v1/namespaces", get(r::namespaces))
         .route("/api/v1/namespaces/{ns}/events", get(r::events))
+        .route("/openapi/v3", get(openapi::index))
+        .route(
+            "/openapi/v3/apis/configbot.dev/v1alpha1",
+            get(openapi::group_version),
+        )
         .route("/apis", get(discovery::groups))
         .route("/apis/configbot.dev", get(discovery::group))
         .route("/apis/configbot.dev/v1alpha1", get(discovery::resources))

@@ -6,8 +6,8 @@ use std::process::ExitCode;
 use std::time::Duration;
 
 use clap::Args;
-use configbot_controller::client::{Client, Endpoint, path};
-use configbot_controller::server::{Server, ServerConfig};
+use crate::client::{Client, Endpoint, path};
+use crate::server::{Server, ServerConfig};
 use configbot_manifests::Kind;
 
 /// The example stacks, embedded so the demo runs from any directory.
@@ -88,12 +88,12 @@ pub async fn run(a: &DemoArgs) -> anyhow::Result<ExitCode> {
         let now = time::OffsetDateTime::now_utc();
         let rows: Vec<Vec<String>> = items
             .iter()
-            .map(|o| configbot_controller::table::row(kind, o, false, false, now))
+            .map(|o| crate::table::row(kind, o, false, false, now))
             .collect();
         print!(
             "{}",
-            configbot_controller::table::render(
-                &configbot_controller::table::headers(kind, false, false),
+            crate::table::render(
+                &crate::table::headers(kind, false, false),
                 &rows
             )
         );

@@ -3,8 +3,8 @@
 use std::process::ExitCode;
 
 use clap::{Args, ValueEnum};
-use configbot_controller::client::{Client, path};
-use configbot_controller::table;
+use crate::client::{Client, path};
+use crate::table;
 use configbot_manifests::Kind;
 use hyper::Method;
 use serde_json::Value;

@@ -7,7 +7,7 @@ mod get;
 use std::path::PathBuf;
 
 use clap::{Args, Parser, Subcommand};
-use configbot_controller::client::{Client, Endpoint};
+use crate::client::{Client, Endpoint};
 
 const AFTER_HELP: &str = "\
 Examples:
@@ -134,12 +134,12 @@ async fn run(cli: Cli) -> anyhow::Result<std::process::ExitCode> {
                 }
                 _ => None,
             };
-            let cfg = configbot_controller::server::ServerConfig {
+            let cfg = crate::server::ServerConfig {
                 db: a.db.clone(),
                 socket: a.socket.clone(),
                 tcp,
             };
-            let server = configbot_controller::server::Server::start(&cfg).await?;
+            let server = crate::server::Server::start(&cfg).await?;
             eprintln!(
                 "configbot: serving on {} (database {})",
                 a.socket.display(),

@@ -1,0 +1,387 @@
+//! A small SVG chart writer for the demo's and the benchmark's plots: lines,
+//! point markers, crosses (infeasible trials), histogram bars and labelled
+//! horizontal reference lines (targets). Pure: a [`Chart`] in, SVG text out.
+
+use std::fmt::Write as _;
+
+/// How one series is drawn.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Mark {
+    /// Connected by straight segments (best-so-far, rates over time).
+    Line,
+    /// A step line: each value holds until the next x.
+    Step,
+    /// Filled circles (feasible trials).
+    Dot,
+    /// Crosses (infeasible trials).
+    Cross,
+    /// Vertical bars from zero; x is the bar's left edge, width from `Chart::bar_width`.
+    Bar,
+}
+
+/// One named series of (x, y) points.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Series {
+    pub name: String,
+    pub mark: Mark,
+    pub color: &'static str,
+    pub points: Vec<(f64, f64)>,
+}
+
+/// A labelled horizontal (y = value) or vertical (x = value) reference line.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Rule {
+    pub label: String,
+    pub value: f64,
+    pub vertical: bool,
+}
+
+/// A whole chart.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct Chart {
+    pub title: String,
+    pub x_label: String,
+    pub y_label: String,
+    pub series: Vec<Series>,
+    pub rules: Vec<Rule>,
+    /// Width of `Mark::Bar` bars in x units.
+    pub bar_width: f64,
+    /// Force y to start at zero (rates, counts).
+    pub y_from_zero: bool,
+}
+
+const W: f64 = 720.0;
+const H: f64 = 420.0;
+const LEFT: f64 = 70.0;
+const RIGHT: f64 = 170.0;
+const TOP: f64 = 40.0;
+const BOTTOM: f64 = 50.0;
+
+/// Colors used by the reports, named for what they show.
+pub mod colors {
+    pub const CORE: &str = "#1f77b4";
+    pub const NON_CORE: &str = "#ff7f0e";
+    pub const FEASIBLE: &str = "#2ca02c";
+    pub const INFEASIBLE: &str = "#d62728";
+    pub const BEST: &str = "#111111";
+    pub const OTHER: &str = "#7f7f7f";
+}
+
+impl Chart {
+    /// The chart as a standalone SVG document.
+    pub fn to_svg(&self) -> String {
+        let (x0, x1, y0, y1) = self.bounds();
+        let sx = |x: f64| LEFT + (x - x0) / (x1 - x0) * (W - LEFT - RIGHT);
+        let sy = |y: f64| H - BOTTOM - (y - y0) / (y1 - y0) * (H - TOP - BOTTOM);
+        let mut s = String::new();
+        let _ = write!(
+            s,
+            r#"<svg xmlns="http://www.w3.org/2000/svg" width="{W}" height="{H}" viewBox="0 0 {W} {H}" font-family="sans-serif" font-size="12">"#
+        );
+        s.push_str(r#"<rect width="100%" height="100%" fill="white"/>"#);
+        let _ = write!(
+            s,
+            r#"<text x="{}" y="22" font-size="15" text-anchor="middle">{}</text>"#,
+            (LEFT + W - RIGHT) / 2.0,
+            esc(&self.title)
+        );
+        // Axes, ticks and labels.
+        let _ = write!(
+            s,
+            r##"<path d="M{LEFT},{TOP} V{} H{}" fill="none" stroke="#333"/>"##,
+            H - BOTTOM,
+            W - RIGHT
+        );
+        for t in ticks(x0, x1) {
+            let _ = write!(
+                s,
+                r##"<line x1="{x}" y1="{}" x2="{x}" y2="{}" stroke="#333"/><text x="{x}" y="{}" text-anchor="middle">{}</text>"##,
+                H - BOTTOM,
+                H - BOTTOM + 5.0,
+                H - BOTTOM + 18.0,
+                fmt_tick(t),
+                x = sx(t)
+            );
+        }
+        for t in ticks(y0, y1) {
+            let _ = write!(
+                s,
+                r##"<line x1="{}" y1="{y}" x2="{LEFT}" y2="{y}" stroke="#333"/><line x1="{LEFT}" y1="{y}" x2="{}" y2="{y}" stroke="#eee"/><text x="{}" y="{}" text-anchor="end">{}</text>"##,
+                LEFT - 5.0,
+                W - RIGHT,
+                LEFT - 8.0,
+                sy(t) + 4.0,
+                fmt_tick(t),
+                y = sy(t)
+            );
+        }
+        let _ = write!(
+            s,
+            r#"<text x="{}" y="{}" text-anchor="middle">{}</text>"#,
+            (LEFT + W - RIGHT) / 2.0,
+            H - 12.0,
+            esc(&self.x_label)
+        );
+        let _ = write!(
+            s,
+            r#"<text x="18" y="{}" text-anchor="middle" transform="rotate(-90 18 {})">{}</text>"#,
+            (TOP + H - BOTTOM) / 2.0,
+            (TOP + H - BOTTOM) / 2.0,
+            esc(&self.y_label)
+        );
+        for r in &self.rules {
+            let (a, b, c, d, tx, ty) = if r.vertical {
+                let x = sx(r.value);
+                (x, TOP, x, H - BOTTOM, x + 3.0, TOP + 12.0)
+            } else {
+                let y = sy(r.value);
+                (LEFT, y, W - RIGHT, y, W - RIGHT + 4.0, y + 4.0)
+            };
+            let _ = write!(
+                s,
+                r##"<line class="rule" x1="{a}" y1="{b}" x2="{c}" y2="{d}" stroke="#555" stroke-dasharray="5,4"/><text x="{tx}" y="{ty}">{}</text>"##,
+                esc(&r.label)
+            );
+        }
+        for (i, se) in self.series.iter().enumerate() {
+            let c = se.color;
+            match se.mark {
+                Mark::Line | Mark::Step => {
+                    let mut d = String::new();
+                    let mut prev_y = None;
+                    for (j, &(x, y)) in se.points.iter().enumerate() {
+                        if j == 0 {
+                            let _ = write!(d, "M{:.1},{:.1}", sx(x), sy(y));
+                        } else {
+                            if se.mark == Mark::Step
+                                && let Some(py) = prev_y
+                            {
+                                let _ = write!(d, " L{:.1},{:.1}", sx(x), sy(py));
+                            }
+                            let _ = write!(d, " L{:.1},{:.1}", sx(x), sy(y));
+                        }
+                        prev_y = Some(y);
+                    }
+                    let _ = write!(
+                        s,
+                        r#"<path class="line" d="{d}" fill="none" stroke="{c}" stroke-width="2"/>"#
+                    );
+                }
+                Mark::Dot => {
+                    for &(x, y) in &se.points {
+                        let _ = write!(
+                            s,
+                            r#"<circle class="dot" cx="{:.1}" cy="{:.1}" r="4" fill="{c}"/>"#,
+                            sx(x),
+                            sy(y)
+                        );
+                    }
+                }
+                Mark::Cross => {
+                    for &(x, y) in &se.points {
+                        let (px, py) = (sx(x), sy(y));
+                        let _ = write!(
+                            s,
+                            r#"<path class="cross" d="M{:.1},{:.1} l8,8 m0,-8 l-8,8" stroke="{c}" stroke-width="2"/>"#,
+                            px - 4.0,
+                            py - 4.0
+                        );
+                    }
+                }
+                Mark::Bar => {
+                    for &(x, y) in &se.points {
+                        let (l, r) = (sx(x), sx(x + self.bar_width));
+                        let (t, b) = (sy(y.max(0.0)), sy(0.0_f64.max(y0)));
+                        let _ = write!(
+                            s,
+                            r#"<rect class="bar" x="{:.1}" y="{:.1}" width="{:.1}" height="{:.1}" fill="{c}" fill-opacity="0.6"/>"#,
+                            l,
+                            t,
+                            (r - l - 1.0).max(0.5),
+                            (b - t).max(0.0)
+                        );
+                    }
+                }
+            }
+            // Legend.
+            let ly = TOP + 10.0 + 18.0 * i as f64;
+            let _ = write!(
+                s,
+                r#"<rect x="{}" y="{}" width="12" height="12" fill="{c}"/><text x="{}" y="{}">{}</text>"#,
+                W - RIGHT + 10.0,
+                ly - 10.0,
+                W - RIGHT + 28.0,
+                ly,
+                esc(&se.name)
+            );
+        }
+        s.push_str("</svg>\n");
+        s
+    }
+
+    /// Data bounds with a margin; never empty.
+    fn bounds(&self) -> (f64, f64, f64, f64) {
+        let mut xs: Vec<f64> = Vec::new();
+        let mut ys: Vec<f64> = Vec::new();
+        for se in &self.series {
+            for &(x, y) in &se.points {
+                if x.is_finite() && y.is_finite() {
+                    xs.push(x);
+                    ys.push(y);
+                    if se.mark == Mark::Bar {
+                        xs.push(x + self.bar_width);
+                        ys.push(0.0);
+                    }
+                }
+            }
+        }
+        for r in &self.rules {
+            if r.vertical { &mut xs } else { &mut ys }.push(r.value);
+        }
+        if self.y_from_zero {
+            ys.push(0.0);
+        }
+        let range = |v: &[f64]| {
+            let lo = v.iter().copied().fold(f64::INFINITY, f64::min);
+            let hi = v.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+            if !lo.is_finite() {
+                (0.0, 1.0)
+            } else if hi - lo < 1e-9 {
+                (lo - 0.5, hi + 0.5)
+            } else {
+                (lo, hi)
+            }
+        };
+        let (x0, x1) = range(&xs);
+        let xpad = (x1 - x0) * 0.03;
+        let (x0, x1) = (x0 - xpad, x1 + xpad);
+        let (y0, y1) = range(&ys);
+        let pad = (y1 - y0) * 0.05;
+        let y0 = if self.y_from_zero && y0 >= 0.0 {
+            0.0
+        } else {
+            y0 - pad
+        };
+        (x0, x1, y0, y1 + pad)
+    }
+}
+
+/// About five round tick values covering [lo, hi].
+fn ticks(lo: f64, hi: f64) -> Vec<f64> {
+    let raw = (hi - lo) / 5.0;
+    let mag = 10f64.powf(raw.log10().floor());
+    let step = [1.0, 2.0, 5.0, 10.0]
+        .iter()
+        .map(|m| m * mag)
+        .find(|s| *s >= raw)
+        .unwrap_or(10.0 * mag);
+    let mut t = (lo / step).ceil() * step;
+    let mut out = Vec::new();
+    while t <= hi + step * 1e-9 && out.len() < 20 {
+        out.push(if t.abs() < step * 1e-9 { 0.0 } else { t });
+        t += step;
+    }
+    out
+}
+
+fn fmt_tick(t: f64) -> String {
+    if (t - t.round()).abs() < 1e-9 {
+        format!("{}", t.round() as i64)
+    } else {
+        let s = format!("{t:.3}");
+        s.trim_end_matches('0').to_owned()
+    }
+}
+
+/// Escapes text for SVG.
+fn esc(s: &str) -> String {
+    s.replace('&', "&amp;")
+        .replace('<', "&lt;")
+        .replace('>', "&gt;")
+        .replace('"', "&quot;")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn chart() -> Chart {
+        Chart {
+            title: "trials <1>".into(),
+            x_label: "trial".into(),
+            y_label: "Hz".into(),
+            series: vec![
+                Series {
+                    name: "feasible".into(),
+                    mark: Mark::Dot,
+                    color: colors::FEASIBLE,
+                    points: vec![(1.0, 3.0), (2.0, 4.0)],
+                },
+                Series {
+                    name: "infeasible".into(),
+                    mark: Mark::Cross,
+                    color: colors::INFEASIBLE,
+                    points: vec![(3.0, 9.0)],
+                },
+                Series {
+                    name: "best".into(),
+                    mark: Mark::Step,
+                    color: colors::BEST,
+                    points: vec![(1.0, 3.0), (2.0, 4.0), (3.0, 4.0)],
+                },
+            ],
+            rules: vec![Rule {
+                label: "target".into(),
+                value: 5.0,
+                vertical: false,
+            }],
+            ..Chart::default()
+        }
+    }
+
+    #[test]
+    fn draws_one_mark_per_point_and_escapes_text() {
+        let svg = chart().to_svg();
+        assert_eq!(svg.matches(r#"class="dot""#).count(), 2);
+        assert_eq!(svg.matches(r#"class="cross""#).count(), 1);
+        assert_eq!(svg.matches(r#"class="line""#).count(), 1);
+        assert_eq!(svg.matches(r#"class="rule""#).count(), 1);
+        assert!(svg.contains("trials &lt;1&gt;"));
+        assert!(svg.starts_with("<svg") && svg.trim_end().ends_with("</svg>"));
+    }
+
+    #[test]
+    fn higher_values_are_drawn_higher() {
+        let svg = chart().to_svg();
+        let cy: Vec<f64> = svg
+            .split(r#"class="dot" cx=""#)
+            .skip(1)
+            .map(|p| {
+                let p = &p[p.find("cy=\"").unwrap() + 4..];
+                p[..p.find('"').unwrap()].parse().unwrap()
+            })
+            .collect();
+        assert!(cy[1] < cy[0], "y=4 must be above y=3: {cy:?}");
+    }
+
+    #[test]
+    fn ticks_are_round_and_cover_the_range() {
+        assert_eq!(ticks(0.0, 10.0), vec![0.0, 2.0, 4.0, 6.0, 8.0, 10.0]);
+        let t = ticks(0.13, 0.97);
+        assert!(t.first().unwrap() >= &0.13 && t.last().unwrap() <= &0.97);
+        assert!(t.len() >= 4);
+    }
+
+    #[test]
+    fn empty_and_flat_charts_still_render() {
+        let mut c = Chart::default();
+        assert!(c.to_svg().contains("</svg>"));
+        c.series.push(Series {
+            name: "flat".into(),
+            mark: Mark::Line,
+            color: colors::CORE,
+            points: vec![(0.0, 2.0), (1.0, 2.0)],
+        });
+        assert!(!c.to_svg().contains("NaN"));
+    }
+}
