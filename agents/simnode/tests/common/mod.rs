@@ -1,0 +1,345 @@
+//! Shared helpers of the simnode integration tests: skip when ROS is absent,
+//! free ports, masters (Debian's rosmaster or the in-process configbot-ros1
+//! master), child processes in their own process groups (killed on drop)
+//! whose stdout lines are timestamped, and condition waits with timeouts.
+
+#![allow(dead_code)]
+
+use std::io::{BufRead, BufReader};
+use std::os::unix::process::CommandExt;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::sync::atomic::{AtomicU32, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+/// True when Debian's ROS 1 tools are installed; otherwise prints why the
+/// test is skipped.
+pub fn ros_available() -> bool {
+    let ok = [
+        "/usr/bin/rostopic",
+        "/usr/bin/rosmaster",
+        "/usr/bin/rosnode",
+    ]
+    .iter()
+    .all(|p| Path::new(p).exists())
+        && Command::new("/usr/bin/python3")
+            .args(["-c", "import rospy, std_msgs.msg"])
+            .stderr(Stdio::null())
+            .status()
+            .is_ok_and(|s| s.success());
+    if !ok {
+        eprintln!(
+            "SKIPPED: ROS 1 tools or rospy missing; apt-get install -y ros-core python3-rospy python3-rostopic python3-rosnode python3-rosparam python3-roslaunch topic-tools"
+        );
+    }
+    ok
+}
+
+/// A free TCP port (never 11311).
+pub fn free_port() -> u16 {
+    loop {
+        let l = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+        let p = l.local_addr().unwrap().port();
+        if p != 11311 {
+            return p;
+        }
+    }
+}
+
+static COUNTER: AtomicU32 = AtomicU32::new(0);
+
+/// A ROS name unique to this process and call.
+pub fn unique(prefix: &str) -> String {
+    format!(
+        "{prefix}_{}_{}",
+        std::process::id(),
+        COUNTER.fetch_add(1, Ordering::Relaxed)
+    )
+}
+
+pub fn scripts() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/scripts")
+}
+
+/// Which master a test runs against.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum MasterKind {
+    /// Debian's `rosmaster --core`.
+    Rosmaster,
+    /// The agent's master (`configbot-ros1`), in this test process.
+    Configbot,
+}
+
+/// A running master; stopped on drop.
+pub struct Master {
+    pub env: RosEnv,
+    _proc: Option<Proc>,
+    _configbot: Option<(tokio::runtime::Runtime, configbot_ros1::Ros1DataPlane)>,
+    _dir: tempfile::TempDir,
+}
+
+impl std::fmt::Debug for Master {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Master").field("env", &self.env).finish()
+    }
+}
+
+impl Master {
+    /// Sets (or with `None` removes) the configbot master's adaptor on the
+    /// edge `topic` → `subscriber`; panics on Debian's rosmaster.
+    pub fn set_adaptor(&self, topic: &str, subscriber: &str, rate_hz: Option<f64>) {
+        use configbot_dataplane::{AdaptorSetting, DataPlane, EdgeId};
+        let (rt, dp) = self
+            ._configbot
+            .as_ref()
+            .expect("adaptors need the configbot master");
+        let _guard = rt.enter();
+        let edge = EdgeId {
+            topic: topic.into(),
+            subscriber: subscriber.into(),
+        };
+        match rate_hz {
+            Some(r) => dp.set_adaptor(&edge, AdaptorSetting { rate_hz: Some(r) }),
+            None => dp.remove_adaptor(&edge),
+        }
+        .unwrap();
+    }
+
+    pub fn start(kind: MasterKind) -> Master {
+        let dir = tempfile::tempdir().unwrap();
+        let port = free_port();
+        let env = RosEnv {
+            master_uri: format!("http://localhost:{port}/"),
+            home: dir.path().to_path_buf(),
+        };
+        let (proc, configbot) = match kind {
+            MasterKind::Rosmaster => (
+                Some(env.spawn("rosmaster", &["--core", "-p", &port.to_string()])),
+                None,
+            ),
+            MasterKind::Configbot => {
+                let rt = tokio::runtime::Runtime::new().unwrap();
+                let cfg = configbot_ros1::Ros1Config {
+                    master_uri: env.master_uri.clone(),
+                    ..configbot_ros1::Ros1Config::default()
+                };
+                let registry = prometheus::Registry::new();
+                let dp = rt
+                    .block_on(configbot_ros1::Ros1DataPlane::start(
+                        cfg,
+                        &dir.path().join("ros1.db"),
+                        &registry,
+                    ))
+                    .unwrap();
+                (None, Some((rt, dp)))
+            }
+        };
+        wait_for("the master to answer", Duration::from_secs(20), || {
+            env.try_run("rosnode", &["list"]).is_some()
+        });
+        Master {
+            env,
+            _proc: proc,
+            _configbot: configbot,
+            _dir: dir,
+        }
+    }
+}
+
+/// Environment for ROS tools against a test master.
+#[derive(Debug, Clone)]
+pub struct RosEnv {
+    pub master_uri: String,
+    pub home: PathBuf,
+}
+
+impl RosEnv {
+    pub fn command(&self, program: &str) -> Command {
+        let mut c = Command::new(program);
+        let path = format!(
+            "/usr/bin:/bin:{}",
+            std::env::var("PATH").unwrap_or_default()
+        );
+        c.env("ROS_MASTER_URI", &self.master_uri)
+            .env("ROS_HOSTNAME", "localhost")
+            .env_remove("ROS_IP")
+            .env("ROS_HOME", &self.home)
+            .env("ROS_LOG_DIR", self.home.join("log"))
+            .env("PATH", path)
+            .env("PYTHONUNBUFFERED", "1")
+            .stdin(Stdio::null());
+        c
+    }
+
+    /// Runs a tool to completion; stdout when it succeeded.
+    pub fn try_run(&self, program: &str, args: &[&str]) -> Option<String> {
+        let out = self
+            .command(program)
+            .args(args)
+            .stderr(Stdio::null())
+            .output()
+            .ok()?;
+        out.status
+            .success()
+            .then(|| String::from_utf8_lossy(&out.stdout).into_owned())
+    }
+
+    pub fn spawn(&self, program: &str, args: &[&str]) -> Proc {
+        let mut c = self.command(program);
+        c.args(args);
+        Proc::spawn(c)
+    }
+
+    /// A rospy script from tests/scripts under Debian's python.
+    pub fn script(&self, script: &str, args: &[&str]) -> Proc {
+        let mut c = self.command("/usr/bin/python3");
+        c.arg(scripts().join(script)).args(args);
+        Proc::spawn(c)
+    }
+
+    /// The simnode binary under test.
+    pub fn simnode(&self, args: &[&str]) -> Proc {
+        let mut c = self.command(env!("CARGO_BIN_EXE_configbot-simnode"));
+        c.args(args);
+        Proc::spawn(c)
+    }
+
+    pub fn node_list(&self) -> Vec<String> {
+        self.try_run("rosnode", &["list"])
+            .unwrap_or_default()
+            .lines()
+            .map(|l| l.trim().to_string())
+            .collect()
+    }
+}
+
+/// A child in its own process group (killed group-wide on drop); its stdout
+/// lines are collected with arrival times.
+#[derive(Debug)]
+pub struct Proc {
+    pub child: Child,
+    pub lines: Arc<Mutex<Vec<(Instant, String)>>>,
+}
+
+impl Proc {
+    pub fn spawn(mut c: Command) -> Proc {
+        c.stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .process_group(0);
+        let mut child = c.spawn().unwrap_or_else(|e| panic!("spawning {c:?}: {e}"));
+        let lines = Arc::new(Mutex::new(Vec::new()));
+        let out = child.stdout.take().unwrap();
+        let l = lines.clone();
+        std::thread::spawn(move || {
+            for line in BufReader::new(out).lines().map_while(Result::ok) {
+                l.lock().unwrap().push((Instant::now(), line));
+            }
+        });
+        Proc { child, lines }
+    }
+
+    pub fn pid(&self) -> u32 {
+        self.child.id()
+    }
+
+    pub fn has_line(&self, s: &str) -> bool {
+        self.lines
+            .lock()
+            .unwrap()
+            .iter()
+            .any(|(_, l)| l.contains(s))
+    }
+
+    /// "msg seq latency_ms len" lines received in [from, to).
+    pub fn msgs_between(&self, from: Instant, to: Instant) -> Vec<(u64, f64, usize)> {
+        self.lines
+            .lock()
+            .unwrap()
+            .iter()
+            .filter(|(t, l)| l.starts_with("msg ") && *t >= from && *t < to)
+            .filter_map(|(_, l)| {
+                let mut w = l.split_whitespace().skip(1);
+                Some((
+                    w.next()?.parse().ok()?,
+                    w.next()?.parse().ok()?,
+                    w.next()?.parse().ok()?,
+                ))
+            })
+            .collect()
+    }
+
+    pub fn msg_count(&self) -> usize {
+        self.msgs_between(
+            Instant::now() - Duration::from_secs(3600),
+            Instant::now() + Duration::from_secs(1),
+        )
+        .len()
+    }
+
+    /// Sends `sig` to the child and waits up to `timeout` for it to exit;
+    /// true when it did.
+    pub fn signal_and_wait(&mut self, sig: &str, timeout: Duration) -> bool {
+        let _ = Command::new("kill")
+            .args([sig, &self.child.id().to_string()])
+            .stderr(Stdio::null())
+            .status();
+        let end = Instant::now() + timeout;
+        while Instant::now() < end {
+            if matches!(self.child.try_wait(), Ok(Some(_))) {
+                return true;
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        false
+    }
+
+    pub fn kill(&mut self) {
+        let _ = Command::new("kill")
+            .args(["-KILL", "--", &format!("-{}", self.child.id())])
+            .stderr(Stdio::null())
+            .status();
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+impl Drop for Proc {
+    fn drop(&mut self) {
+        self.kill();
+    }
+}
+
+/// Waits until `f` holds, panicking with `what` after `timeout`.
+pub fn wait_for(what: &str, timeout: Duration, mut f: impl FnMut() -> bool) {
+    let end = Instant::now() + timeout;
+    while Instant::now() < end {
+        if f() {
+            return;
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    panic!("timed out after {timeout:?} waiting for {what}");
+}
+
+/// User + system CPU time of process `pid` (from /proc/PID/stat).
+pub fn cpu_time(pid: u32) -> Duration {
+    let s = std::fs::read_to_string(format!("/proc/{pid}/stat")).unwrap();
+    let rest = &s[s.rfind(')').unwrap() + 2..];
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    // Fields 14 and 15 of stat (utime, stime) are 11 and 12 after the comm.
+    let ticks: u64 = f[11].parse::<u64>().unwrap() + f[12].parse::<u64>().unwrap();
+    Duration::from_secs_f64(ticks as f64 / 100.0)
+}
+
+/// Number of threads of process `pid`.
+pub fn threads(pid: u32) -> usize {
+    std::fs::read_to_string(format!("/proc/{pid}/status"))
+        .unwrap()
+        .lines()
+        .find_map(|l| {
+            l.strip_prefix("Threads:")
+                .map(|v| v.trim().parse().unwrap())
+        })
+        .unwrap()
+}

@@ -1,0 +1,231 @@
+//! Real-process tests of the simnode's CPU models: the shared worker pool
+//! (a heavy non-core callback starves a core one sharing one worker — the
+//! paper's Task 1/Task 2), costs that are real CPU time, and
+//! thread-per-message oversubscription under a cgroup CPU limit (the
+//! paper's object detector, Fig. 2b; needs root and cgroup v1 `cpu`).
+//! Loads are small (≤ 0.6 CPU) because the machine is shared.
+
+mod common;
+
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+
+use common::*;
+
+fn wait_more(p: &Proc, n: usize, what: &str) {
+    let base = p.msg_count();
+    wait_for(what, Duration::from_secs(30), || p.msg_count() >= base + n);
+}
+
+fn rate_over(p: &Proc, secs: f64) -> (f64, Vec<(u64, f64, usize)>) {
+    let from = Instant::now();
+    std::thread::sleep(Duration::from_secs_f64(secs));
+    let to = Instant::now();
+    let m = p.msgs_between(from, to);
+    (m.len() as f64 / (to - from).as_secs_f64(), m)
+}
+
+#[test]
+fn heavy_callback_starves_a_core_callback_sharing_one_worker() {
+    if !ros_available() {
+        return;
+    }
+    let m = Master::start(MasterKind::Configbot);
+    let env = &m.env;
+    let t = |s: &str| format!("/{}", unique(s));
+    let (core_in, heavy_in, core_out, heavy_out) = (t("scan"), t("image"), t("cmd_vel"), t("goal"));
+    let (p1, p2) = (format!("{core_in}:20:64"), format!("{heavy_in}:10:64"));
+    let _src = env.simnode(&["--name", &t("sensors"), "--publish", &p1, "--publish", &p2]);
+    let listener = env.script("listen.py", &[&unique("listener"), &core_out]);
+    wait_for("the listener", Duration::from_secs(20), || {
+        listener.has_line("ready")
+    });
+    let core = format!("{core_in}->{core_out}:cost-ms=2");
+    let heavy = format!("{heavy_in}->{heavy_out}:cost-ms=60");
+    let nav = t("navigation");
+
+    let phase = |args: &[&str]| -> f64 {
+        let mut a = vec!["--name", nav.as_str(), "--on", core.as_str()];
+        a.extend_from_slice(args);
+        let mut node = env.simnode(&a);
+        wait_more(&listener, 5, "core output");
+        let (rate, _) = rate_over(&listener, 3.0);
+        assert!(node.signal_and_wait("-TERM", Duration::from_secs(5)));
+        rate
+    };
+    let alone = phase(&["--workers", "1"]);
+    let shared = phase(&["--workers", "1", "--on", &heavy]);
+    let two = phase(&["--workers", "2", "--on", &heavy]);
+    eprintln!(
+        "core callback rate: alone {alone:.1} Hz, sharing 1 worker {shared:.1} Hz, 2 workers {two:.1} Hz"
+    );
+    assert!(alone >= 16.0, "alone {alone:.1} Hz of 20");
+    // One worker: the core callback runs about once per 60 ms heavy run
+    // (≈ 10 Hz of 20); allow up to 75 % of the alone rate.
+    assert!(
+        shared <= 0.75 * alone,
+        "shared {shared:.1} vs alone {alone:.1}"
+    );
+    assert!(
+        two >= 0.8 * alone,
+        "two workers {two:.1} vs alone {alone:.1}"
+    );
+}
+
+#[test]
+fn costs_are_real_cpu_time() {
+    if !ros_available() {
+        return;
+    }
+    let m = Master::start(MasterKind::Rosmaster);
+    let env = &m.env;
+    let t = |s: &str| format!("/{}", unique(s));
+    let (a, b) = (t("raw"), t("cooked"));
+    let spec = format!("{a}:20:256");
+    let src = env.simnode(&[
+        "--name",
+        &t("src"),
+        "--publish",
+        &spec,
+        "--cost-ms-per-msg",
+        "10",
+    ]);
+    let on = format!("{a}->{b}:cost-ms=15");
+    let cb = env.simnode(&["--name", &t("proc"), "--on", &on]);
+    let listener = env.script("listen.py", &[&unique("listener"), &b]);
+    wait_more(&listener, 10, "callback output");
+    let (c0, d0) = (cpu_time(src.pid()), cpu_time(cb.pid()));
+    let (rate, msgs) = rate_over(&listener, 4.0);
+    let (c1, d1) = (cpu_time(src.pid()), cpu_time(cb.pid()));
+    let n = msgs.len() as f64;
+    let per_src = (c1 - c0).as_secs_f64() * 1000.0 / n;
+    let per_cb = (d1 - d0).as_secs_f64() * 1000.0 / n;
+    eprintln!(
+        "rate {rate:.1} Hz; CPU per message: publisher {per_src:.2} ms (cost 10), callback {per_cb:.2} ms (cost 15)"
+    );
+    assert!(n >= 40.0, "only {n} messages in 4 s");
+    // 10 ms clock ticks over ~0.8 s of CPU, plus networking overhead.
+    assert!(
+        (8.5..=14.0).contains(&per_src),
+        "publisher {per_src:.2} ms/msg"
+    );
+    assert!(
+        (13.0..=20.0).contains(&per_cb),
+        "callback {per_cb:.2} ms/msg"
+    );
+}
+
+/// A cgroup v1 `cpu` group, removed on drop (after its processes died).
+struct Cgroup(PathBuf);
+
+impl Cgroup {
+    fn create(quota_us: u64) -> Option<Cgroup> {
+        let root = PathBuf::from("/sys/fs/cgroup/cpu");
+        let p = root.join(unique("configbot-simnode-test"));
+        std::fs::create_dir(&p).ok()?;
+        let g = Cgroup(p);
+        std::fs::write(g.0.join("cpu.cfs_period_us"), "100000").ok()?;
+        std::fs::write(g.0.join("cpu.cfs_quota_us"), quota_us.to_string()).ok()?;
+        Some(g)
+    }
+    fn add(&self, pid: u32) {
+        std::fs::write(self.0.join("cgroup.procs"), pid.to_string()).unwrap();
+    }
+}
+
+impl Drop for Cgroup {
+    fn drop(&mut self) {
+        for _ in 0..50 {
+            if std::fs::remove_dir(&self.0).is_ok() {
+                return;
+            }
+            std::thread::sleep(Duration::from_millis(100));
+        }
+    }
+}
+
+#[test]
+fn thread_per_message_threads_pile_up_under_a_cpu_limit() {
+    if !ros_available() {
+        return;
+    }
+    // Declared first so it is dropped after the processes in it.
+    let Some(cg) = Cgroup::create(20_000) else {
+        eprintln!(
+            "SKIPPED: cannot create a cgroup under /sys/fs/cgroup/cpu (needs root, cgroup v1 cpu)"
+        );
+        return;
+    };
+    let m = Master::start(MasterKind::Configbot);
+    let env = &m.env;
+    let t = |s: &str| format!("/{}", unique(s));
+    let (img, det) = (t("image"), t("detections"));
+    let on = format!("{img}->{det}:cost-ms=40,bytes=128");
+    let detector = env.simnode(&[
+        "--name",
+        &t("detector"),
+        "--thread-per-message",
+        "--on",
+        &on,
+    ]);
+    let listener = env.script("listen.py", &[&unique("listener"), &det]);
+    wait_for("the listener", Duration::from_secs(20), || {
+        listener.has_line("ready")
+    });
+    let idle = threads(detector.pid());
+    let spec = format!("{img}:10:1024");
+    let _camera = env.simnode(&["--name", &t("camera"), "--publish", &spec]);
+
+    // Unlimited: 10 Hz × 40 ms = 0.4 CPU, each message done before the next.
+    wait_more(&listener, 5, "detections");
+    let mut peak_free = 0;
+    let from = Instant::now();
+    while from.elapsed() < Duration::from_secs(2) {
+        peak_free = peak_free.max(threads(detector.pid()) - idle);
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let free = listener.msgs_between(from, Instant::now());
+
+    // 0.2 CPU: 10 threads (the cap) share it, each message takes seconds.
+    cg.add(detector.pid());
+    std::thread::sleep(Duration::from_secs(2));
+    let mut peak_limited = 0;
+    let from = Instant::now();
+    while from.elapsed() < Duration::from_secs(4) {
+        peak_limited = peak_limited.max(threads(detector.pid()) - idle);
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let limited = listener.msgs_between(from, Instant::now());
+    let med = |m: &[(u64, f64, usize)]| {
+        let mut l: Vec<f64> = m.iter().map(|x| x.1).collect();
+        l.sort_by(f64::total_cmp);
+        l.get(l.len() / 2).copied().unwrap_or(f64::INFINITY)
+    };
+    let (free_rate, lim_rate) = (free.len() as f64 / 2.0, limited.len() as f64 / 4.0);
+    eprintln!(
+        "detector: unlimited {free_rate:.1} Hz, {peak_free} extra threads, median latency {:.0} ms; 0.2 CPU: {lim_rate:.1} Hz, {peak_limited} extra threads, median latency {:.0} ms",
+        med(&free),
+        med(&limited)
+    );
+    assert!(
+        free_rate >= 7.0,
+        "unlimited detector {free_rate:.1} Hz of 10"
+    );
+    assert!(
+        (8..=10).contains(&peak_limited),
+        "threads under the limit: {peak_limited}"
+    );
+    assert!(
+        peak_limited > peak_free + 3,
+        "{peak_limited} vs {peak_free}"
+    );
+    assert!(
+        lim_rate <= 6.5,
+        "limited detector {lim_rate:.1} Hz (0.2 CPU / 40 ms = 5 Hz)"
+    );
+    assert!(
+        med(&limited) > 3.0 * med(&free).max(40.0),
+        "latency did not grow"
+    );
+    drop(detector);
+}
