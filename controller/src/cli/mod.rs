@@ -68,6 +68,9 @@ enum Command {
         after_help = "The control plane drives it over its API (Unix socket, or TCP with --token).\n\nExamples:\n  configbot agent --stack stack.yaml                  # supervise a RobotStack\n  configbot agent --ros-master-uri http://localhost:11311/ --tcp 0.0.0.0:9443 --token \"$TOKEN\""
     )]
     Agent(configbot_agent::cli::AgentArgs),
+    /// Run a simulated ROS 1 node (periodic publishers, CPU-costed callbacks);
+    /// the example stacks are made of these.
+    Simnode(configbot_simnode::SimnodeArgs),
 }
 
 #[derive(Debug, Args)]
@@ -184,6 +187,10 @@ async fn run(cli: Cli) -> anyhow::Result<std::process::ExitCode> {
             }
         },
         Command::Demo(a) => demo::run(a).await,
+        Command::Simnode(a) => {
+            configbot_simnode::run(a.clone()).await?;
+            Ok(ExitCode::SUCCESS)
+        }
         Command::Agent(a) => {
             configbot_agent::cli::run(a.clone()).await?;
             Ok(ExitCode::SUCCESS)
