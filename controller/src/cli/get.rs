@@ -227,6 +227,13 @@ pub async fn describe(client: &Client, a: &DescribeArgs) -> anyhow::Result<ExitC
                 );
             }
         }
+        Kind::ConfigProfile => {
+            let c = &obj["spec"]["context"];
+            println!("  Model: {}", s(&c["robotModel"]));
+            println!("  Spec: {}", s(&obj["spec"]["specName"]));
+            println!("  Context: apps {} nodes {}", c["apps"], c["nodes"]);
+            println!("  Config: {}", obj["spec"]["config"]);
+        }
     }
     let st = &obj["status"];
     println!("Status:");
