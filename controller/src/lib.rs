@@ -11,3 +11,4 @@ pub mod reconcile;
 pub mod server;
 pub mod store;
 pub mod table;
+pub mod tuning;
