@@ -14,6 +14,7 @@ pub mod library;
 pub mod machine;
 pub mod measure;
 pub mod monitor;
+pub mod outcome;
 pub mod robot;
 pub mod runner;
 pub mod sim;
