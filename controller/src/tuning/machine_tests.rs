@@ -124,9 +124,9 @@ fn name(s: &State) -> &'static str {
 
 fn reasons(out: &[Output]) -> Vec<&'static str> {
     out.iter()
-        .filter_map(|o| match o {
-            Output::Event { reason, .. } => Some(*reason),
-            Output::SaveProfile(_) => Some("<save>"),
+        .map(|o| match o {
+            Output::Event { reason, .. } => *reason,
+            Output::SaveProfile(_) => "<save>",
         })
         .collect()
 }
@@ -169,7 +169,16 @@ fn transition_table() {
         unreachable!()
     };
     // (case, state, input, settle-free spec?, tuning allowed, next state, event reasons)
-    let cases: Vec<(&str, State, Input, bool, bool, &str, Vec<&str>)> = vec![
+    type Case = (
+        &'static str,
+        State,
+        Input,
+        bool,
+        bool,
+        &'static str,
+        Vec<&'static str>,
+    );
+    let cases: Vec<Case> = vec![
         (
             "unknown context measures a baseline",
             observe(false),
