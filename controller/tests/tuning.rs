@@ -473,3 +473,70 @@ async fn remediation_stops_the_non_core_app_and_is_undone_when_tuning_is_allowed
             .contains("configbot_tuning_remediations_total")
     );
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn server_with_a_robot_starts_a_runner_per_spec_and_stops_it_on_delete() {
+    use configbot_controller::server::{Server, ServerConfig};
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = ServerConfig {
+        db: dir.path().join("db.sqlite"),
+        socket: dir.path().join("api.sock"),
+        tcp: None,
+    };
+    let robot = sim(11);
+    let server = Server::start_with_robot_and_clock(&cfg, robot.clone(), robot.clone())
+        .await
+        .unwrap();
+    let store = server.state.store.clone();
+    store.put(Kind::RobotStack, stack(), true).unwrap();
+    store
+        .put(Kind::PerformanceSpec, spec(35.0, 6, json!({})), true)
+        .unwrap();
+    let deadline = tokio::time::Instant::now() + Duration::from_secs(120);
+    let status = loop {
+        let obj = store
+            .get(Kind::PerformanceSpec, "default", "nav-spec")
+            .unwrap()
+            .unwrap();
+        if obj["status"]["phase"] == "Monitoring" {
+            break obj["status"].clone();
+        }
+        assert!(tokio::time::Instant::now() < deadline, "{obj:#}");
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    };
+    let cond = |t: &str| {
+        status["conditions"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|c| c["type"] == t)
+            .cloned()
+            .unwrap_or_else(|| panic!("condition {t} in {status:#}"))
+    };
+    assert_eq!(cond("Accepted")["status"], "True", "the reconciler's part");
+    assert_eq!(cond("StackResolved")["status"], "True");
+    assert_eq!(cond("Ready")["reason"], "Satisfied", "the runner owns Ready");
+    assert_eq!(
+        server.state.store.list(Kind::ConfigProfile, None).unwrap().0.len(),
+        1
+    );
+    let tuning = server.tuning.clone().unwrap();
+    assert_eq!(
+        tuning.running(),
+        vec![("default".to_string(), "nav-spec".to_string())]
+    );
+    store
+        .delete(Kind::PerformanceSpec, "default", "nav-spec")
+        .unwrap();
+    let deadline = tokio::time::Instant::now() + Duration::from_secs(30);
+    while !tuning.running().is_empty()
+        || runner::load_run(&store, "default", "nav-spec")
+            .unwrap()
+            .is_some()
+    {
+        assert!(tokio::time::Instant::now() < deadline, "runner still running");
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    drop(tuning);
+    server.stop();
+}

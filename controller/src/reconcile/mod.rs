@@ -88,7 +88,7 @@ pub fn reconcile(key: &ObjectKey, obj: Option<Value>, ctx: &Context) -> Result<A
         if key.kind == Kind::PerformanceSpec
             && let Some(t) = &ctx.tuning
         {
-            t.stop(&key.namespace, &key.name);
+            t.forget(&key.namespace, &key.name);
         }
         return Ok(Action::AwaitChange);
     };

@@ -539,6 +539,14 @@ impl TuningManager {
         }
     }
 
+    /// The spec was deleted: stop its runner and drop its persisted run.
+    pub fn forget(&self, ns: &str, name: &str) {
+        self.stop(ns, name);
+        if let Err(e) = self.ctx.store.delete_state(STATE_SCOPE, &run_key(ns, name)) {
+            eprintln!("configbot: tuning run {ns}/{name}: {e}");
+        }
+    }
+
     /// Specs with a live runner.
     pub fn running(&self) -> Vec<(String, String)> {
         let r = self.runners.lock().unwrap_or_else(|p| p.into_inner());
