@@ -515,10 +515,50 @@ async fn server_with_a_robot_starts_a_runner_per_spec_and_stops_it_on_delete() {
     };
     assert_eq!(cond("Accepted")["status"], "True", "the reconciler's part");
     assert_eq!(cond("StackResolved")["status"], "True");
-    assert_eq!(cond("Ready")["reason"], "Satisfied", "the runner owns Ready");
     assert_eq!(
-        server.state.store.list(Kind::ConfigProfile, None).unwrap().0.len(),
+        cond("Ready")["reason"],
+        "Satisfied",
+        "the runner owns Ready"
+    );
+    assert_eq!(
+        server
+            .state
+            .store
+            .list(Kind::ConfigProfile, None)
+            .unwrap()
+            .0
+            .len(),
         1
+    );
+    // The CLI: the trials view and the library as ConfigProfiles (export as YAML).
+    let cli = |args: &[&str]| {
+        let out = std::process::Command::new(env!("CARGO_BIN_EXE_configbot"))
+            .arg("--server")
+            .arg(format!("unix://{}", cfg.socket.display()))
+            .args(args)
+            .output()
+            .unwrap();
+        assert!(out.status.success(), "{args:?}: {out:?}");
+        String::from_utf8(out.stdout).unwrap()
+    };
+    let view = cli(&["get", "trials", "nav-spec"]);
+    assert!(
+        view.starts_with("nav-spec: Monitoring  trials 6/6 [####################]"),
+        "{view}"
+    );
+    assert!(
+        view.contains("baseline") && view.contains("CMD-VEL"),
+        "{view}"
+    );
+    let profiles = cli(&["get", "cprof"]);
+    assert!(
+        profiles.contains("simbot") && profiles.contains("nav-spec"),
+        "{profiles}"
+    );
+    let exported = cli(&["get", "cprof", "-o", "yaml"]);
+    assert!(
+        exported.contains("kind: ConfigProfile") && exported.contains("robotModel: simbot"),
+        "{exported}"
     );
     let tuning = server.tuning.clone().unwrap();
     assert_eq!(
@@ -534,9 +574,43 @@ async fn server_with_a_robot_starts_a_runner_per_spec_and_stops_it_on_delete() {
             .unwrap()
             .is_some()
     {
-        assert!(tokio::time::Instant::now() < deadline, "runner still running");
+        assert!(
+            tokio::time::Instant::now() < deadline,
+            "runner still running"
+        );
         tokio::time::sleep(Duration::from_millis(20)).await;
     }
     drop(tuning);
     server.stop();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn exported_profile_lets_another_robot_of_the_model_skip_tuning() {
+    let a = Fixture::new(spec(35.0, 8, json!({})));
+    let h = a.spawn();
+    a.until("robot A tuned", |r| monitoring(r, 5)).await;
+    h.abort();
+    let (profiles, _) = a.store.list(Kind::ConfigProfile, None).unwrap();
+    let yaml = serde_saphyr::to_string(&profiles[0]).unwrap();
+    // Robot B: a fresh database; the profile is imported as a manifest.
+    let b = Fixture::new(spec(35.0, 8, json!({})));
+    let loaded = configbot_manifests::load("profile.yaml", &yaml).unwrap();
+    assert_eq!(loaded.len(), 1);
+    b.store
+        .put(Kind::ConfigProfile, loaded[0].manifest.to_json(), true)
+        .unwrap();
+    let h = b.spawn();
+    b.until("robot B monitoring", |r| monitoring(r, 5)).await;
+    h.abort();
+    let run = b.run();
+    assert!(
+        run.trials.is_empty() && run.baseline.is_none(),
+        "no tuning on B"
+    );
+    assert_eq!(run.library_hits, 1);
+    assert_eq!(b.sim.applied(), vec![profiles_config(&profiles[0])]);
+}
+
+fn profiles_config(p: &Value) -> configbot_manifests::ResourceConfig {
+    serde_json::from_value(p["spec"]["config"].clone()).unwrap()
 }

@@ -19,3 +19,4 @@ pub mod robot;
 pub mod runner;
 pub mod sim;
 pub mod status;
+pub mod view;
