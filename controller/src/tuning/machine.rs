@@ -169,8 +169,11 @@ pub struct Run {
     pub monitor: ConstraintMonitor,
     /// Human explanation of the outcome.
     pub reason: Option<String>,
-    /// Library hits and remediations in this run (for metrics and status).
+    /// Library hits in this run (for status and tests).
     pub library_hits: u32,
+    /// The config this run last applied (what a baseline measures).
+    #[serde(default)]
+    pub current: ResourceConfig,
 }
 
 impl Run {
@@ -191,6 +194,7 @@ impl Run {
             monitor: ConstraintMonitor::default(),
             reason: None,
             library_hits: 0,
+            current: ResourceConfig::default(),
         }
     }
 
@@ -331,6 +335,15 @@ pub fn step(mut run: Run, input: Input, env: &Env<'_>) -> (Run, Vec<Output>) {
             skip_library: false,
         },
     );
+    if input == Input::Applied {
+        match &state {
+            State::TrialApply { config, .. }
+            | State::VerifyApply { config, .. }
+            | State::UnsatApply { config } => run.current = config.clone(),
+            State::RemediateApply { .. } => run.current = ResourceConfig::default(),
+            _ => {}
+        }
+    }
     run.state = match (state, input) {
         // Outside triggers: while monitoring (or verifying a library config), re-observe.
         (State::Monitor { .. }, Input::Trigger(t)) => {
@@ -503,7 +516,7 @@ fn baseline_done(
         }
     };
     // The config running now, as the knobs see it (unset knobs at their upper bound).
-    let x = run.knobs.from_config(&ResourceConfig::default());
+    let x = run.knobs.from_config(&run.current);
     let config = run.knobs.to_config(&x);
     out.push(normal(
         "Baseline",

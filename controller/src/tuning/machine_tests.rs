@@ -649,3 +649,27 @@ fn effects_and_resume_points() {
     let back: Run = serde_json::from_str(&json).unwrap();
     assert_eq!(back.state, trial(None));
 }
+
+#[test]
+fn baseline_is_the_config_last_applied() {
+    let (st, sp) = (stack(), spec(0.0, 5));
+    let env = env(&st, &sp);
+    let (run, _) = step(
+        with(State::UnsatApply { config: cfg() }),
+        Input::Applied,
+        &env,
+    );
+    assert_eq!(run.current, cfg());
+    let mut run = run;
+    run.state = State::Baseline {
+        graph: graph(),
+        prior: None,
+    };
+    let (run, _) = step(run, report(&BAD, 5.0), &env);
+    let b = run.baseline.unwrap();
+    assert_eq!(b.config.cpu["/detector"], 0.5);
+    assert_eq!(
+        b.config.cpu["/camera"], 2.0,
+        "unset knobs at their upper bound"
+    );
+}

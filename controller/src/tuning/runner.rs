@@ -108,6 +108,7 @@ struct Runner {
     name: String,
     events: broadcast::Receiver<RobotEvent>,
     next_graph_check_ms: u64,
+    graph_interval_ms: u64,
     failures: u32,
 }
 
@@ -120,6 +121,7 @@ pub async fn run_spec(ctx: RunnerCtx, ns: String, name: String) {
         name,
         events,
         next_graph_check_ms: 0,
+        graph_interval_ms: 30_000,
         failures: 0,
     };
     let mut run: Option<Run> = None;
@@ -195,11 +197,13 @@ impl Runner {
         let uid = spec.metadata.uid.clone().unwrap_or_default();
         let mut run = match run {
             Some(r) if r.generation == generation => r,
-            Some(_) => {
+            Some(old) => {
                 let t = Trigger::SpecChanged;
                 self.trigger_metric(&t);
                 self.event(true, t.reason(), &t.message());
-                Run::new(generation, t)
+                let mut r = Run::new(generation, t);
+                r.current = old.current;
+                r
             }
             None => match store.get_state(STATE_SCOPE, &key) {
                 Ok(Some(body)) => match serde_json::from_str::<Persisted>(&body) {
@@ -251,6 +255,7 @@ impl Runner {
             .map_err(|e| fail(e.into(), Some(run.clone())))?;
         self.write_status(&run, &env, generation)
             .map_err(|e| fail(e, Some(run.clone())))?;
+        self.graph_interval_ms = (spec.spec.monitoring.graph_interval_seconds * 1000.0) as u64;
         let effect = machine::effect(&run, &env);
         let labels = labels(&spec, &stack);
         let input = match self.execute(effect, &run, &env, &stack, &labels).await {
@@ -258,8 +263,7 @@ impl Runner {
             Err(e) => return Err(fail(e, Some(run))),
         };
         if matches!(input, Input::Observed { .. }) {
-            self.next_graph_check_ms = self.ctx.clock.now_ms()
-                + (spec.spec.monitoring.graph_interval_seconds * 1000.0) as u64;
+            self.next_graph_check_ms = self.ctx.clock.now_ms() + self.graph_interval_ms;
         }
         let (next, outputs) = machine::step(run, input, &env);
         run = next;
@@ -415,7 +419,7 @@ impl Runner {
         self.next_graph_check_ms = u64::MAX; // set again after the next Observe
         let from = run.context.as_ref().map(|c| c.key()).unwrap_or_default();
         if from == ctx.key() {
-            self.next_graph_check_ms = self.ctx.clock.now_ms() + 30_000;
+            self.next_graph_check_ms = self.ctx.clock.now_ms() + self.graph_interval_ms;
             return Ok(None);
         }
         Ok(Some(Trigger::ContextChanged {
