@@ -109,6 +109,8 @@ struct Runner {
     events: broadcast::Receiver<RobotEvent>,
     next_graph_check_ms: u64,
     graph_interval_ms: u64,
+    /// Time of the last process exec seen (to report detection latency).
+    last_exec_ms: Option<u64>,
     failures: u32,
 }
 
@@ -122,6 +124,7 @@ pub async fn run_spec(ctx: RunnerCtx, ns: String, name: String) {
         events,
         next_graph_check_ms: 0,
         graph_interval_ms: 30_000,
+        last_exec_ms: None,
         failures: 0,
     };
     let mut run: Option<Run> = None;
@@ -371,6 +374,9 @@ impl Runner {
                         biased;
                         ev = self.events.recv() => match ev {
                             Ok(e) => {
+                                if let RobotEvent::ProcessExec { at_unix_ms, .. } = &e {
+                                    self.last_exec_ms = Some(*at_unix_ms);
+                                }
                                 if let Some(cause) = monitor::recheck_cause(&e) {
                                     if let Some(t) = self.context_trigger(run, stack, labels, &cause).await? {
                                         return Ok(Input::Trigger(t));
@@ -422,10 +428,17 @@ impl Runner {
             self.next_graph_check_ms = self.ctx.clock.now_ms() + self.graph_interval_ms;
             return Ok(None);
         }
+        let by = match self.last_exec_ms.take() {
+            Some(t) => format!(
+                "{by}; {} ms after the last process exec",
+                self.ctx.clock.now_ms().saturating_sub(t)
+            ),
+            None => by.to_string(),
+        };
         Ok(Some(Trigger::ContextChanged {
             from,
             to: ctx.key(),
-            by: by.into(),
+            by,
         }))
     }
 

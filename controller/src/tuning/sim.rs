@@ -61,7 +61,7 @@ struct SimState {
     nodes: Vec<SimNode>,
     stopped: BTreeSet<String>,
     config: ResourceConfig,
-    applied: Vec<ResourceConfig>,
+    applied: Vec<(u64, ResourceConfig)>,
     measures: u64,
     hang_at: Option<u64>,
 }
@@ -116,6 +116,11 @@ impl SimRobot {
 
     /// Every config applied so far.
     pub fn applied(&self) -> Vec<ResourceConfig> {
+        self.lock().applied.iter().map(|a| a.1.clone()).collect()
+    }
+
+    /// Every config applied so far with the simulated time it was applied at.
+    pub fn applied_at(&self) -> Vec<(u64, ResourceConfig)> {
         self.lock().applied.clone()
     }
 
@@ -361,9 +366,10 @@ impl Robot for SimRobot {
                     format!("invalid CPU limit in {cfg:?}"),
                 ));
             }
+            let at = self.now_ms();
             let mut s = self.lock();
             s.config = cfg.clone();
-            s.applied.push(cfg.clone());
+            s.applied.push((at, cfg.clone()));
             Ok(())
         })
     }
@@ -373,6 +379,9 @@ impl Robot for SimRobot {
         req: &'a MeasureRequest,
     ) -> BoxFuture<'a, Result<MeasureReport, RobotError>> {
         Box::pin(async move {
+            // Yield before the window "passes": a caller racing this against
+            // events sees events that are already there first.
+            tokio::task::yield_now().await;
             let hang = {
                 let mut s = self.lock();
                 s.measures += 1;
@@ -417,7 +426,6 @@ impl Robot for SimRobot {
                     }
                 })
                 .collect();
-            tokio::task::yield_now().await;
             Ok(MeasureReport {
                 started_unix_ms: start,
                 duration_ms: windows * sub,
