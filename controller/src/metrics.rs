@@ -1,6 +1,6 @@
 //! The control plane's Prometheus metrics, on a registry of its own.
 
-use prometheus::{Encoder, IntCounterVec, IntGaugeVec, Opts, Registry, TextEncoder};
+use prometheus::{Encoder, GaugeVec, IntCounterVec, IntGaugeVec, Opts, Registry, TextEncoder};
 
 #[derive(Debug)]
 pub struct Metrics {
@@ -8,6 +8,112 @@ pub struct Metrics {
     pub api_requests: IntCounterVec,
     pub reconciles: IntCounterVec,
     pub objects: IntGaugeVec,
+    pub tuning: TuningMetrics,
+}
+
+/// Metrics of the tuning loop, labelled by namespace and spec.
+#[derive(Debug, Clone)]
+pub struct TuningMetrics {
+    /// 1 for the run's current phase, 0 for the others.
+    pub phase: IntGaugeVec,
+    /// Trials measured in the current run.
+    pub trials: IntGaugeVec,
+    /// Constraint satisfaction (steady state while monitoring), 0..1.
+    pub satisfaction: GaugeVec,
+    /// Last measured value of each metric, and its target.
+    pub metric_value: GaugeVec,
+    pub metric_target: GaugeVec,
+    pub library_hits: IntCounterVec,
+    /// Relearning / re-check triggers by cause.
+    pub triggers: IntCounterVec,
+    /// Remediations and their undos.
+    pub remediations: IntCounterVec,
+}
+
+/// Phases the phase gauge reports.
+pub const PHASES: [&str; 6] = [
+    "Baseline",
+    "Tuning",
+    "Satisfied",
+    "Unsat",
+    "Monitoring",
+    "Remediating",
+];
+
+fn gauge(name: &str, help: &str, labels: &[&str]) -> GaugeVec {
+    GaugeVec::new(Opts::new(name, help), labels)
+        .unwrap_or_else(|_| unreachable!("static metric definition"))
+}
+
+fn igauge(name: &str, help: &str, labels: &[&str]) -> IntGaugeVec {
+    IntGaugeVec::new(Opts::new(name, help), labels)
+        .unwrap_or_else(|_| unreachable!("static metric definition"))
+}
+
+fn counter(name: &str, help: &str, labels: &[&str]) -> IntCounterVec {
+    IntCounterVec::new(Opts::new(name, help), labels)
+        .unwrap_or_else(|_| unreachable!("static metric definition"))
+}
+
+impl TuningMetrics {
+    fn new(registry: &Registry) -> TuningMetrics {
+        let spec = &["namespace", "spec"];
+        let m = TuningMetrics {
+            phase: igauge(
+                "configbot_tuning_phase",
+                "1 for the current phase of a spec's tuning run",
+                &["namespace", "spec", "phase"],
+            ),
+            trials: igauge(
+                "configbot_tuning_trials",
+                "Trials measured in the current run",
+                spec,
+            ),
+            satisfaction: gauge(
+                "configbot_tuning_satisfaction",
+                "Share of 1 s windows in which every core constraint held",
+                spec,
+            ),
+            metric_value: gauge(
+                "configbot_tuning_metric_value",
+                "Last measured value of a spec metric",
+                &["namespace", "spec", "metric"],
+            ),
+            metric_target: gauge(
+                "configbot_tuning_metric_target",
+                "Target of a spec metric",
+                &["namespace", "spec", "metric"],
+            ),
+            library_hits: counter(
+                "configbot_tuning_library_hits_total",
+                "Familiar contexts re-applied from the config library",
+                spec,
+            ),
+            triggers: counter(
+                "configbot_tuning_triggers_total",
+                "Relearning and context re-check triggers by cause",
+                &["namespace", "spec", "cause"],
+            ),
+            remediations: counter(
+                "configbot_tuning_remediations_total",
+                "Remediations (stop non-core apps) and their undos",
+                &["namespace", "spec", "action"],
+            ),
+        };
+        for c in [
+            Box::new(m.phase.clone()) as Box<dyn prometheus::core::Collector>,
+            Box::new(m.trials.clone()),
+            Box::new(m.satisfaction.clone()),
+            Box::new(m.metric_value.clone()),
+            Box::new(m.metric_target.clone()),
+            Box::new(m.library_hits.clone()),
+            Box::new(m.triggers.clone()),
+            Box::new(m.remediations.clone()),
+        ] {
+            let _ = registry.register(c);
+        }
+        m
+    }
 }
 
 impl Metrics {
@@ -41,7 +147,9 @@ impl Metrics {
         ] {
             let _ = registry.register(c);
         }
+        let tuning = TuningMetrics::new(&registry);
         Metrics {
+            tuning,
             registry,
             api_requests,
             reconciles,

@@ -8,6 +8,8 @@ use crate::api::{self, AppState};
 use crate::metrics::Metrics;
 use crate::reconcile::{self, Context};
 use crate::store::Store;
+use crate::tuning::robot::{Clock, Robot, SystemClock};
+use crate::tuning::runner::{RunnerCtx, TuningManager};
 
 /// Where and how the control plane serves.
 #[derive(Debug, Clone)]
@@ -23,12 +25,40 @@ pub struct ServerConfig {
 #[derive(Debug)]
 pub struct Server {
     pub state: AppState,
+    /// Tuning runners (with a robot attached).
+    pub tuning: Option<Arc<TuningManager>>,
     tasks: Vec<tokio::task::JoinHandle<()>>,
 }
 
 impl Server {
-    /// Start the control plane in the current tokio runtime.
+    /// Start the control plane in the current tokio runtime (no robot: specs
+    /// are validated and resolved, not tuned).
     pub async fn start(cfg: &ServerConfig) -> anyhow::Result<Server> {
+        Self::start_inner(cfg, None).await
+    }
+
+    /// Start the control plane with a robot: every valid PerformanceSpec gets
+    /// a tuning runner driving `robot` (wall-clock time).
+    pub async fn start_with_robot(
+        cfg: &ServerConfig,
+        robot: Arc<dyn Robot>,
+    ) -> anyhow::Result<Server> {
+        Self::start_inner(cfg, Some((robot, Arc::new(SystemClock)))).await
+    }
+
+    /// As [`Server::start_with_robot`], on an injected clock (simulated robots).
+    pub async fn start_with_robot_and_clock(
+        cfg: &ServerConfig,
+        robot: Arc<dyn Robot>,
+        clock: Arc<dyn Clock>,
+    ) -> anyhow::Result<Server> {
+        Self::start_inner(cfg, Some((robot, clock))).await
+    }
+
+    async fn start_inner(
+        cfg: &ServerConfig,
+        robot: Option<(Arc<dyn Robot>, Arc<dyn Clock>)>,
+    ) -> anyhow::Result<Server> {
         if let Some(dir) = cfg.db.parent() {
             std::fs::create_dir_all(dir)?;
         }
@@ -38,7 +68,19 @@ impl Server {
             store: store.clone(),
             metrics: metrics.clone(),
         };
-        let mut tasks = vec![tokio::spawn(reconcile::run(Context { store, metrics }))];
+        let tuning = robot.map(|(robot, clock)| {
+            Arc::new(TuningManager::new(RunnerCtx {
+                robot,
+                clock,
+                store: store.clone(),
+                metrics: metrics.clone(),
+            }))
+        });
+        let mut tasks = vec![tokio::spawn(reconcile::run(Context {
+            store,
+            metrics,
+            tuning: tuning.clone(),
+        }))];
         let router = api::router(state.clone());
         let socket = cfg.socket.clone();
         if let Some(dir) = socket.parent() {
@@ -68,7 +110,11 @@ impl Server {
                 }
             }));
         }
-        Ok(Server { state, tasks })
+        Ok(Server {
+            state,
+            tuning,
+            tasks,
+        })
     }
 
     /// Stop serving and reconciling.
@@ -76,6 +122,7 @@ impl Server {
         for t in self.tasks {
             t.abort();
         }
+        drop(self.tuning);
     }
 }
 

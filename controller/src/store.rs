@@ -119,6 +119,8 @@ CREATE TABLE IF NOT EXISTS events (
     id INTEGER PRIMARY KEY AUTOINCREMENT, time TEXT NOT NULL, namespace TEXT NOT NULL,
     kind TEXT NOT NULL, name TEXT NOT NULL, uid TEXT NOT NULL, type TEXT NOT NULL,
     reason TEXT NOT NULL, message TEXT NOT NULL);
+CREATE TABLE IF NOT EXISTS controller_state (
+    scope TEXT NOT NULL, key TEXT NOT NULL, body TEXT NOT NULL, PRIMARY KEY (scope, key));
 ";
 
 /// How many change rows are kept for watches to resume from.
@@ -467,6 +469,43 @@ impl Store {
     }
 }
 
+impl Store {
+    /// Save a controller-private document (e.g. a tuning run's resume point),
+    /// replacing the previous one; one transaction, durable on return.
+    pub fn put_state(&self, scope: &str, key: &str, body: &str) -> Result<()> {
+        self.with(|c| {
+            c.execute(
+                "INSERT INTO controller_state (scope, key, body) VALUES (?1, ?2, ?3)
+                 ON CONFLICT(scope, key) DO UPDATE SET body=excluded.body",
+                params![scope, key, body],
+            )
+            .map(|_| ())
+        })
+    }
+
+    /// A controller-private document saved by [`Store::put_state`].
+    pub fn get_state(&self, scope: &str, key: &str) -> Result<Option<String>> {
+        self.with(|c| {
+            c.query_row(
+                "SELECT body FROM controller_state WHERE scope=?1 AND key=?2",
+                params![scope, key],
+                |r| r.get(0),
+            )
+            .optional()
+        })
+    }
+
+    pub fn delete_state(&self, scope: &str, key: &str) -> Result<()> {
+        self.with(|c| {
+            c.execute(
+                "DELETE FROM controller_state WHERE scope=?1 AND key=?2",
+                params![scope, key],
+            )
+            .map(|_| ())
+        })
+    }
+}
+
 /// The stored JSON text of one object.
 fn read_body(
     c: &Connection,
@@ -669,6 +708,26 @@ mod tests {
             s.delete(Kind::RobotStack, "default", "a"),
             Err(StoreError::NotFound { .. })
         ));
+    }
+
+    #[test]
+    fn controller_state_round_trips_and_survives_reopen() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("t.db");
+        {
+            let s = Store::open(&path).unwrap();
+            s.put_state("tuning", "default/a", "{\"n\":1}").unwrap();
+            s.put_state("tuning", "default/a", "{\"n\":2}").unwrap();
+            s.put_state("tuning", "default/b", "{}").unwrap();
+            s.delete_state("tuning", "default/b").unwrap();
+        }
+        let s = Store::open(&path).unwrap();
+        assert_eq!(
+            s.get_state("tuning", "default/a").unwrap().as_deref(),
+            Some("{\"n\":2}")
+        );
+        assert_eq!(s.get_state("tuning", "default/b").unwrap(), None);
+        assert_eq!(s.get_state("other", "default/a").unwrap(), None);
     }
 
     #[test]

@@ -6,17 +6,19 @@
 pub enum Kind {
     RobotStack,
     PerformanceSpec,
+    ConfigProfile,
 }
 
 impl Kind {
     /// Every kind, in apply order (stacks before the specs that name them).
-    pub const ALL: [Kind; 2] = [Kind::RobotStack, Kind::PerformanceSpec];
+    pub const ALL: [Kind; 3] = [Kind::RobotStack, Kind::PerformanceSpec, Kind::ConfigProfile];
 
     /// The `kind` field value.
     pub fn name(self) -> &'static str {
         match self {
             Kind::RobotStack => "RobotStack",
             Kind::PerformanceSpec => "PerformanceSpec",
+            Kind::ConfigProfile => "ConfigProfile",
         }
     }
 
@@ -25,6 +27,7 @@ impl Kind {
         match self {
             Kind::RobotStack => "robotstacks",
             Kind::PerformanceSpec => "performancespecs",
+            Kind::ConfigProfile => "configprofiles",
         }
     }
 
@@ -32,6 +35,7 @@ impl Kind {
         match self {
             Kind::RobotStack => "robotstack",
             Kind::PerformanceSpec => "performancespec",
+            Kind::ConfigProfile => "configprofile",
         }
     }
 
@@ -39,6 +43,7 @@ impl Kind {
         match self {
             Kind::RobotStack => &["rs"],
             Kind::PerformanceSpec => &["pspec", "ps"],
+            Kind::ConfigProfile => &["cprof"],
         }
     }
 
@@ -56,9 +61,16 @@ impl Kind {
             PrinterColumn::new("Satisfaction", "number", ".status.satisfaction", false),
             PrinterColumn::new("Trials", "integer", ".status.trials", true),
         ];
+        const PROFILE: &[PrinterColumn] = &[
+            PrinterColumn::new("Model", "string", ".spec.context.robotModel", false),
+            PrinterColumn::new("Spec", "string", ".spec.specName", false),
+            PrinterColumn::new("Satisfaction", "number", ".spec.satisfaction", false),
+            PrinterColumn::new("Objective", "number", ".spec.objective", true),
+        ];
         match self {
             Kind::RobotStack => STACK,
             Kind::PerformanceSpec => SPEC,
+            Kind::ConfigProfile => PROFILE,
         }
     }
 
@@ -144,6 +156,9 @@ mod tests {
         }
         for w in ["pspec", "performancespecs", "PerformanceSpec"] {
             assert_eq!(Kind::lookup(w), Some(Kind::PerformanceSpec), "{w}");
+        }
+        for w in ["cprof", "configprofiles", "ConfigProfile"] {
+            assert_eq!(Kind::lookup(w), Some(Kind::ConfigProfile), "{w}");
         }
         assert_eq!(Kind::lookup("pods"), None);
     }

@@ -1,4 +1,4 @@
-//! ConfigBot's typed API: the `RobotStack` and `PerformanceSpec` manifests,
+//! ConfigBot's typed API: the `RobotStack`, `PerformanceSpec` and `ConfigProfile` manifests,
 //! their parsing with precise errors (file, document, field path, line:column),
 //! semantic validation and defaults. No IO beyond reading text.
 //!
@@ -7,6 +7,7 @@
 //! violations at once). [`load`] runs all three and maps every error to a line.
 
 pub mod config;
+pub mod config_profile;
 pub mod kind;
 pub mod meta;
 pub mod names;
@@ -19,6 +20,7 @@ pub mod yaml;
 use std::fmt;
 
 pub use config::{AdaptorRate, ResourceConfig};
+pub use config_profile::{ConfigProfile, ConfigProfileSpec, ProfileContext, ProfileTrial};
 pub use kind::Kind;
 pub use meta::{
     API_VERSION, Condition, ConditionStatus, DEFAULT_NAMESPACE, GROUP, ObjectMeta, VERSION,
@@ -33,6 +35,7 @@ pub use validate::FieldError;
 pub enum Manifest {
     RobotStack(RobotStack),
     PerformanceSpec(PerformanceSpec),
+    ConfigProfile(ConfigProfile),
 }
 
 impl Manifest {
@@ -40,6 +43,7 @@ impl Manifest {
         match self {
             Manifest::RobotStack(_) => Kind::RobotStack,
             Manifest::PerformanceSpec(_) => Kind::PerformanceSpec,
+            Manifest::ConfigProfile(_) => Kind::ConfigProfile,
         }
     }
 
@@ -47,6 +51,7 @@ impl Manifest {
         match self {
             Manifest::RobotStack(s) => &s.metadata,
             Manifest::PerformanceSpec(p) => &p.metadata,
+            Manifest::ConfigProfile(c) => &c.metadata,
         }
     }
 
@@ -55,6 +60,7 @@ impl Manifest {
         let v = match self {
             Manifest::RobotStack(s) => serde_json::to_value(s),
             Manifest::PerformanceSpec(p) => serde_json::to_value(p),
+            Manifest::ConfigProfile(c) => serde_json::to_value(c),
         };
         // Serializing plain data types into a JSON value cannot fail.
         v.unwrap_or(serde_json::Value::Null)
@@ -98,6 +104,7 @@ pub fn decode(value: &serde_json::Value) -> Result<Manifest, FieldError> {
     match kind {
         Kind::RobotStack => typed(value).map(Manifest::RobotStack),
         Kind::PerformanceSpec => typed(value).map(Manifest::PerformanceSpec),
+        Kind::ConfigProfile => typed(value).map(Manifest::ConfigProfile),
     }
 }
 

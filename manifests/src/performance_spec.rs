@@ -341,8 +341,62 @@ pub struct PerformanceSpecStatus {
     pub non_core_performance: BTreeMap<String, f64>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub best_config: Option<ResourceConfig>,
+    /// Trials measured in the current tuning run.
     #[serde(default)]
     pub trials: u32,
+    /// The trial budget of the current run (for progress displays).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub max_trials: Option<u32>,
+    /// The knobs of the current run, derived from the stack, the spec and the live graph.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub knobs: Vec<KnobStatus>,
+    /// The measurement of the config found on the robot when the run started.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub baseline: Option<TrialStatus>,
+    /// Every trial of the current run, in order.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub trial_history: Vec<TrialStatus>,
+    /// Index (into `trialHistory`) of the trial whose config is applied as the best.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub best_trial: Option<u32>,
+    /// The context the run is for (robot model, running apps and nodes, labels).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub context: Option<String>,
+    /// Why the run is where it is (for Unsat: which constraint, the best value reached, what to relax).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub reason: Option<String>,
+}
+
+/// One knob of a tuning run.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(rename_all = "camelCase", deny_unknown_fields)]
+pub struct KnobStatus {
+    /// `cpu:/node` or `rate:/topic>/subscriber`.
+    pub name: String,
+    pub min: f64,
+    pub max: f64,
+}
+
+/// One measured config: baseline, trial or library re-apply.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(rename_all = "camelCase", deny_unknown_fields)]
+pub struct TrialStatus {
+    /// 0-based trial number within the run.
+    pub index: u32,
+    pub config: ResourceConfig,
+    /// Value of every metric by name (window mean).
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub values: BTreeMap<String, f64>,
+    /// Share of 1 s sub-windows in which every core constraint held (0..1).
+    pub satisfaction: f64,
+    /// Scalarised non-core performance (0..1 when every objective has a target).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub objective: Option<f64>,
+    /// Every core constraint met (and the trial ran its full window).
+    pub feasible: bool,
+    /// Stopped early because clearly infeasible.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub censored: bool,
 }
 
 fn default_metric_window() -> f64 {

@@ -3,7 +3,7 @@
 
 use schemars::generate::SchemaSettings;
 
-use crate::{Kind, PerformanceSpec, RobotStack};
+use crate::{ConfigProfile, Kind, PerformanceSpec, RobotStack};
 
 /// The JSON Schema (draft 2020-12) of a kind, as pretty JSON with a trailing newline.
 pub fn json_schema(kind: Kind) -> String {
@@ -11,6 +11,7 @@ pub fn json_schema(kind: Kind) -> String {
     let schema = match kind {
         Kind::RobotStack => generator.into_root_schema_for::<RobotStack>(),
         Kind::PerformanceSpec => generator.into_root_schema_for::<PerformanceSpec>(),
+        Kind::ConfigProfile => generator.into_root_schema_for::<ConfigProfile>(),
     };
     let mut text = serde_json::to_string_pretty(&schema).unwrap_or_default();
     text.push('\n');
@@ -30,6 +31,7 @@ pub fn openapi_schema(kind: Kind) -> serde_json::Value {
     let schema = match kind {
         Kind::RobotStack => generator.into_root_schema_for::<RobotStack>(),
         Kind::PerformanceSpec => generator.into_root_schema_for::<PerformanceSpec>(),
+        Kind::ConfigProfile => generator.into_root_schema_for::<ConfigProfile>(),
     };
     let mut v = schema.to_value();
     if let Some(o) = v.as_object_mut() {

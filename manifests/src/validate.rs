@@ -3,6 +3,8 @@
 
 use std::collections::{BTreeMap, BTreeSet};
 
+use crate::config::ResourceConfig;
+use crate::config_profile::ConfigProfile;
 use crate::names::{
     check_dns_label, check_env_name, check_label, check_object_name, check_ros_name,
 };
@@ -49,6 +51,10 @@ pub fn validate(m: &Manifest) -> Vec<FieldError> {
         Manifest::PerformanceSpec(p) => {
             check_header(&mut e, &p.api_version, &p.metadata);
             performance_spec(&mut e, p);
+        }
+        Manifest::ConfigProfile(c) => {
+            check_header(&mut e, &c.api_version, &c.metadata);
+            config_profile(&mut e, c);
         }
     }
     e.0
@@ -371,5 +377,60 @@ fn edge_selectors(e: &mut Errors, path: &str, sel: &[EdgeSelector]) {
         if let Some(sub) = &s.subscriber {
             e.check(format!("{path}[{i}].subscriber"), check_ros_name(sub));
         }
+    }
+}
+
+fn config_profile(e: &mut Errors, c: &ConfigProfile) {
+    let spec = &c.spec;
+    let ctx = &spec.context;
+    if ctx.robot_model.is_empty() {
+        e.add(
+            "spec.context.robotModel",
+            "must name the robot model the config is for",
+        );
+    }
+    for (i, a) in ctx.apps.iter().enumerate() {
+        e.check(format!("spec.context.apps[{i}]"), check_dns_label(a));
+    }
+    for (i, n) in ctx.nodes.iter().enumerate() {
+        e.check(format!("spec.context.nodes[{i}]"), check_ros_name(n));
+    }
+    for (k, v) in &ctx.labels {
+        e.check(
+            crate::yaml::join_key("spec.context.labels", k),
+            check_label(k, v),
+        );
+    }
+    e.check("spec.specName", check_object_name(&spec.spec_name));
+    resource_config(e, "spec.config", &spec.config);
+    for (i, t) in spec.trials.iter().enumerate() {
+        resource_config(e, &format!("spec.trials[{i}].config"), &t.config);
+        for (k, v) in &t.values {
+            if !v.is_finite() {
+                e.add(
+                    crate::yaml::join_key(&format!("spec.trials[{i}].values"), k),
+                    format!("must be a finite number, got {v}"),
+                );
+            }
+        }
+    }
+    if let Some(s) = spec.satisfaction
+        && !(0.0..=1.0).contains(&s)
+    {
+        e.add("spec.satisfaction", format!("{s} is outside 0..=1"));
+    }
+}
+
+fn resource_config(e: &mut Errors, path: &str, c: &ResourceConfig) {
+    for (node, v) in &c.cpu {
+        let p = crate::yaml::join_key(&format!("{path}.cpu"), node);
+        e.check(p.clone(), check_ros_name(node));
+        e.positive(p, *v);
+    }
+    for (i, a) in c.adaptors.iter().enumerate() {
+        let ap = format!("{path}.adaptors[{i}]");
+        e.check(format!("{ap}.topic"), check_ros_name(&a.topic));
+        e.check(format!("{ap}.subscriber"), check_ros_name(&a.subscriber));
+        e.positive(format!("{ap}.rateHz"), a.rate_hz);
     }
 }

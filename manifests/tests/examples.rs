@@ -24,7 +24,11 @@ fn example_stacks_load() {
             kinds.extend(loaded.into_iter().map(|l| l.manifest.kind()));
         }
     }
-    assert_eq!(kinds.len(), 6, "three stacks, each with its spec");
+    assert_eq!(
+        kinds.len(),
+        7,
+        "three stacks, each with its spec, and a config profile"
+    );
 }
 
 #[test]

@@ -486,6 +486,8 @@ fn validate_status(kind: Kind, status: &Value) -> ApiResult<()> {
             configbot_manifests::PerformanceSpecStatus,
         >(status)
         .map(|_| ()),
+        // A ConfigProfile has no status of its own.
+        Kind::ConfigProfile => Ok(()),
     };
     r.map_err(|e| {
         ApiError::invalid(

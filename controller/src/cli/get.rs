@@ -18,7 +18,8 @@ pub enum Output {
 
 #[derive(Debug, Args)]
 pub struct GetArgs {
-    /// Kind: robotstack (rs) or performancespec (pspec).
+    /// Kind: robotstack (rs), performancespec (pspec), configprofile (cprof),
+    /// or `trials` with a PerformanceSpec name (its tuning run).
     kind: String,
     /// Object name; all objects when omitted.
     name: Option<String>,
@@ -65,7 +66,7 @@ pub struct DeleteArgs {
 
 pub fn kind(word: &str) -> anyhow::Result<Kind> {
     Kind::lookup(word).ok_or_else(|| {
-        anyhow::anyhow!("unknown kind {word:?}; use robotstack (rs) or performancespec (pspec)")
+        anyhow::anyhow!("unknown kind {word:?}; use robotstack (rs), performancespec (pspec), configprofile (cprof) or trials")
     })
 }
 
@@ -106,6 +107,9 @@ fn print_objects(
 }
 
 pub async fn get(client: &Client, a: &GetArgs) -> anyhow::Result<ExitCode> {
+    if matches!(a.kind.as_str(), "trials" | "trial") {
+        return trials(client, a).await;
+    }
     let kind = kind(&a.kind)?;
     let ns = (!a.all_namespaces).then_some(a.namespace.as_str());
     let mut query = Vec::new();
@@ -150,6 +154,39 @@ pub async fn get(client: &Client, a: &GetArgs) -> anyhow::Result<ExitCode> {
             .watch(&wpath, |ev| {
                 let obj = ev["object"].clone();
                 let _ = print_objects(kind, std::slice::from_ref(&obj), output, all, false);
+                true
+            })
+            .await?;
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+/// `configbot get trials SPEC [-w]`: the tuning run of one PerformanceSpec;
+/// with `-w` the view is redrawn on every change.
+async fn trials(client: &Client, a: &GetArgs) -> anyhow::Result<ExitCode> {
+    use configbot_controller::tuning::view::trials_view;
+    let Some(name) = &a.name else {
+        anyhow::bail!("usage: configbot get trials SPEC [-w] (SPEC is a PerformanceSpec name)");
+    };
+    let kind = Kind::PerformanceSpec;
+    let obj = client
+        .get(&path(kind, Some(&a.namespace), Some(name)))
+        .await?;
+    if matches!(a.output, Some(Output::Json)) {
+        println!("{}", serde_json::to_string_pretty(&obj["status"])?);
+        return Ok(ExitCode::SUCCESS);
+    }
+    print!("{}", trials_view(&obj));
+    if a.watch {
+        let rv = obj["metadata"]["resourceVersion"].as_str().unwrap_or("0");
+        let wpath = format!(
+            "{}?fieldSelector=metadata.name%3D{name}&watch=true&resourceVersion={rv}",
+            path(kind, Some(&a.namespace), None)
+        );
+        client
+            .watch(&wpath, |ev| {
+                // Clear the screen and redraw (ANSI), like `watch`.
+                print!("\x1b[2J\x1b[H{}", trials_view(&ev["object"]));
                 true
             })
             .await?;
@@ -226,6 +263,13 @@ pub async fn describe(client: &Client, a: &DescribeArgs) -> anyhow::Result<ExitC
                     s(&metric["app"])
                 );
             }
+        }
+        Kind::ConfigProfile => {
+            let c = &obj["spec"]["context"];
+            println!("  Model: {}", s(&c["robotModel"]));
+            println!("  Spec: {}", s(&obj["spec"]["specName"]));
+            println!("  Context: apps {} nodes {}", c["apps"], c["nodes"]);
+            println!("  Config: {}", obj["spec"]["config"]);
         }
     }
     let st = &obj["status"];

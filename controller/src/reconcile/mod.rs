@@ -78,11 +78,18 @@ impl Backoff {
 pub struct Context {
     pub store: Arc<Store>,
     pub metrics: Arc<Metrics>,
+    /// Tuning runners, when the server has a robot attached.
+    pub tuning: Option<Arc<crate::tuning::runner::TuningManager>>,
 }
 
 /// Reconcile one object; `None` when it was deleted.
 pub fn reconcile(key: &ObjectKey, obj: Option<Value>, ctx: &Context) -> Result<Action, StoreError> {
     let Some(obj) = obj else {
+        if key.kind == Kind::PerformanceSpec
+            && let Some(t) = &ctx.tuning
+        {
+            t.forget(&key.namespace, &key.name);
+        }
         return Ok(Action::AwaitChange);
     };
     let (status, events) = match key.kind {
@@ -94,11 +101,26 @@ pub fn reconcile(key: &ObjectKey, obj: Option<Value>, ctx: &Context) -> Result<A
                 .get(Kind::RobotStack, &key.namespace, stack_name)?;
             plan::performance_spec_status(&obj, stack.as_ref(), &now())
         }
+        // Library entries have no status; the tuning runners read them.
+        Kind::ConfigProfile => (None, Vec::new()),
     };
+    let phase = status
+        .as_ref()
+        .or(obj.get("status"))
+        .and_then(|s| s["phase"].as_str())
+        .unwrap_or("")
+        .to_string();
     if let Some(status) = status {
         let rv = obj["metadata"]["resourceVersion"].as_str();
         ctx.store
             .put_status(key.kind, &key.namespace, &key.name, status, rv)?;
+    }
+    // A valid spec whose stack exists gets a tuning runner (when a robot is attached).
+    if key.kind == Kind::PerformanceSpec
+        && let Some(t) = &ctx.tuning
+        && !matches!(phase.as_str(), "" | "Pending" | "Invalid")
+    {
+        t.ensure(&key.namespace, &key.name);
     }
     for e in events {
         ctx.store

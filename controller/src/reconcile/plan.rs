@@ -222,17 +222,25 @@ pub fn performance_spec_status(
                 if matches!(new.phase.as_str(), "" | "Pending" | "Invalid") {
                     new.phase = "Accepted".into();
                 }
-                set_condition(
-                    &mut new.conditions,
-                    cond(
-                        ct::READY,
-                        ConditionStatus::Unknown,
-                        reasons::NOT_MEASURED,
-                        "no agent has reported metrics for this stack yet".into(),
-                        g,
-                        now,
-                    ),
-                );
+                // Once a tuning run reports readiness, the run owns `Ready`.
+                let tuned = new.conditions.iter().any(|c| {
+                    c.type_ == ct::READY
+                        && ![reasons::NOT_MEASURED, reasons::STACK_NOT_FOUND]
+                            .contains(&c.reason.as_str())
+                });
+                if !tuned {
+                    set_condition(
+                        &mut new.conditions,
+                        cond(
+                            ct::READY,
+                            ConditionStatus::Unknown,
+                            reasons::NOT_MEASURED,
+                            "no agent has reported metrics for this stack yet".into(),
+                            g,
+                            now,
+                        ),
+                    );
+                }
             } else {
                 new.phase = "Invalid".into();
                 let msg = errs

@@ -1,0 +1,398 @@
+//! The knob space of a tuning run (pure): a CPU-limit knob per running node
+//! of the stack (bounds from `spec.knobs.cpu`, per-node overrides; core nodes
+//! fixed when `fixCoreNodes`), and an adaptor-rate knob per edge the data-plane
+//! policy selects (topic above `minTopicRateHz` touching a non-core app, plus
+//! include/exclude) with bounds `[minRateHz, source rate]`. Maps optimizer
+//! points to `ResourceConfig`s and back.
+
+use std::collections::BTreeMap;
+
+use configbot_dataplane::Graph;
+use configbot_dataplane::policy::{self, EdgeSelector, PolicyConfig};
+use configbot_manifests::performance_spec::KnobStatus;
+use configbot_manifests::{AdaptorRate, PerformanceSpecSpec, ResourceConfig, RobotStackSpec};
+use serde::{Deserialize, Serialize};
+
+/// What one knob sets.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "camelCase")]
+pub enum KnobTarget {
+    /// `cpu.max` of a node, in CPUs.
+    Cpu { node: String },
+    /// Rate of the adaptor on one subscription edge, in Hz.
+    Adaptor { topic: String, subscriber: String },
+}
+
+/// One knob with its bounds.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct KnobDef {
+    pub name: String,
+    pub target: KnobTarget,
+    pub min: f64,
+    pub max: f64,
+}
+
+/// The knobs of a run, in optimizer order.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct KnobSpace {
+    pub knobs: Vec<KnobDef>,
+    pub period_micros: u64,
+}
+
+/// The knob space could not be built.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum KnobError {
+    #[error("knob {name}: bounds [{min}, {max}] are empty")]
+    EmptyBounds { name: String, min: f64, max: f64 },
+    #[error("optimizer space: {0}")]
+    Space(String),
+}
+
+/// Name of a CPU knob.
+pub fn cpu_knob_name(node: &str) -> String {
+    format!("cpu:{node}")
+}
+
+/// Name of an adaptor knob.
+pub fn adaptor_knob_name(topic: &str, subscriber: &str) -> String {
+    format!("rate:{topic}>{subscriber}")
+}
+
+/// Derive the knobs. `running` is the set of nodes alive on the robot (from
+/// the graph); `rates` the measured rate of each topic; `cpus` the robot's CPUs.
+pub fn derive(
+    stack: &RobotStackSpec,
+    spec: &PerformanceSpecSpec,
+    graph: &Graph,
+    rates: &BTreeMap<String, f64>,
+    cpus: f64,
+) -> Result<KnobSpace, KnobError> {
+    let cpu = &spec.knobs.cpu;
+    let mut knobs = Vec::new();
+    for (app, node) in stack.nodes() {
+        if !graph.nodes.contains_key(&node.name) {
+            continue;
+        }
+        let over = cpu.nodes.iter().find(|b| b.node == node.name);
+        if over.is_some_and(|o| o.fixed) || (app.core && cpu.fix_core_nodes && over.is_none()) {
+            continue;
+        }
+        let min = over.and_then(|o| o.min).unwrap_or(cpu.min);
+        let max = over
+            .and_then(|o| o.max)
+            .or(cpu.max)
+            .unwrap_or(cpus)
+            .min(cpus);
+        let name = cpu_knob_name(&node.name);
+        if min.partial_cmp(&max) != Some(std::cmp::Ordering::Less) {
+            return Err(KnobError::EmptyBounds { name, min, max });
+        }
+        knobs.push(KnobDef {
+            name,
+            target: KnobTarget::Cpu {
+                node: node.name.clone(),
+            },
+            min,
+            max,
+        });
+    }
+    let a = &spec.knobs.adaptors;
+    if a.enabled {
+        let core_of: BTreeMap<&str, bool> = stack
+            .nodes()
+            .map(|(app, n)| (n.name.as_str(), app.core))
+            .collect();
+        let apps = |n: &str| core_of.get(n).copied();
+        let sel = |s: &configbot_manifests::performance_spec::EdgeSelector| EdgeSelector {
+            topic: s.topic.clone(),
+            subscriber: s.subscriber.clone(),
+        };
+        let mut cfg = PolicyConfig {
+            min_topic_rate_hz: a.min_topic_rate_hz,
+            include: a.include.iter().map(sel).collect(),
+            ..PolicyConfig::default()
+        };
+        cfg.exclude.extend(a.exclude.iter().map(sel));
+        for e in policy::select_adaptor_edges(graph, rates, &apps, &cfg) {
+            let Some(&source) = rates.get(&e.topic) else {
+                continue;
+            };
+            if source <= a.min_rate_hz {
+                continue;
+            }
+            knobs.push(KnobDef {
+                name: adaptor_knob_name(&e.topic, &e.subscriber),
+                target: KnobTarget::Adaptor {
+                    topic: e.topic,
+                    subscriber: e.subscriber,
+                },
+                min: a.min_rate_hz,
+                max: source,
+            });
+        }
+    }
+    Ok(KnobSpace {
+        knobs,
+        period_micros: cpu.period_micros,
+    })
+}
+
+impl KnobSpace {
+    /// The optimizer's space: CPU knobs linear, adaptor rates on a log scale.
+    pub fn optimizer_space(&self) -> Result<configbot_optimizer::Space, KnobError> {
+        let knobs = self
+            .knobs
+            .iter()
+            .map(|k| match k.target {
+                KnobTarget::Cpu { .. } => configbot_optimizer::Knob::linear(&k.name, k.min, k.max),
+                KnobTarget::Adaptor { .. } => configbot_optimizer::Knob::log(&k.name, k.min, k.max),
+            })
+            .collect();
+        configbot_optimizer::Space::new(knobs).map_err(|e| KnobError::Space(e.to_string()))
+    }
+
+    /// The config of a point (knob values in order). Values are rounded to
+    /// 0.001 CPU and 0.01 Hz so configs read well in status.
+    pub fn to_config(&self, x: &[f64]) -> ResourceConfig {
+        let mut cfg = ResourceConfig {
+            cpu_period_micros: Some(self.period_micros),
+            ..ResourceConfig::default()
+        };
+        for (k, &v) in self.knobs.iter().zip(x) {
+            let v = v.clamp(k.min, k.max);
+            match &k.target {
+                KnobTarget::Cpu { node } => {
+                    cfg.cpu.insert(node.clone(), round(v, 1000.0));
+                }
+                KnobTarget::Adaptor { topic, subscriber } => cfg.adaptors.push(AdaptorRate {
+                    topic: topic.clone(),
+                    subscriber: subscriber.clone(),
+                    rate_hz: round(v, 100.0),
+                }),
+            }
+        }
+        cfg
+    }
+
+    /// The point of a config: a knob the config does not set is at its upper
+    /// bound (unlimited CPU, pass-through adaptor); values are clamped into bounds.
+    pub fn from_config(&self, cfg: &ResourceConfig) -> Vec<f64> {
+        self.knobs
+            .iter()
+            .map(|k| {
+                let v = match &k.target {
+                    KnobTarget::Cpu { node } => cfg.cpu.get(node).copied(),
+                    KnobTarget::Adaptor { topic, subscriber } => cfg
+                        .adaptors
+                        .iter()
+                        .find(|a| a.topic == *topic && a.subscriber == *subscriber)
+                        .map(|a| a.rate_hz),
+                };
+                v.unwrap_or(k.max).clamp(k.min, k.max)
+            })
+            .collect()
+    }
+
+    /// The knob list as status shows it.
+    pub fn status(&self) -> Vec<KnobStatus> {
+        self.knobs
+            .iter()
+            .map(|k| KnobStatus {
+                name: k.name.clone(),
+                min: k.min,
+                max: k.max,
+            })
+            .collect()
+    }
+}
+
+fn round(v: f64, per: f64) -> f64 {
+    (v * per).round() / per
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use configbot_dataplane::{NodeInfo, TopicInfo};
+    use configbot_manifests::performance_spec::NodeCpuBounds;
+
+    fn stack() -> RobotStackSpec {
+        serde_json::from_value(serde_json::json!({
+            "robot": {"model": "spot", "cpus": 2},
+            "apps": [
+                {"name": "nav", "core": true, "nodes": [
+                    {"name": "/lidar", "run": {"command": "x"}},
+                    {"name": "/planner", "run": {"command": "x"}}]},
+                {"name": "det", "nodes": [
+                    {"name": "/camera", "run": {"command": "x"}},
+                    {"name": "/detector", "run": {"command": "x"}}]},
+                {"name": "web", "nodes": [{"name": "/web", "run": {"command": "x"}}]}
+            ]
+        }))
+        .unwrap()
+    }
+
+    fn spec() -> PerformanceSpecSpec {
+        serde_json::from_value(serde_json::json!({
+            "stackRef": {"name": "s"},
+            "metrics": [{"name": "cmd", "app": "nav",
+                "source": {"topicRate": {"topic": "/cmd_vel"}}, "target": {"atLeast": 35}}]
+        }))
+        .unwrap()
+    }
+
+    fn graph(nodes: &[&str]) -> Graph {
+        let mut g = Graph::default();
+        for n in nodes {
+            g.nodes.insert(
+                n.to_string(),
+                NodeInfo {
+                    name: n.to_string(),
+                    uri: String::new(),
+                    pid: None,
+                },
+            );
+        }
+        let mut topic = |t: &str, p: &str, s: &[&str]| {
+            g.topics.insert(
+                t.into(),
+                TopicInfo {
+                    name: t.into(),
+                    msg_type: "m/M".into(),
+                    publishers: [p.to_string()].into(),
+                    subscribers: s
+                        .iter()
+                        .filter(|s| nodes.contains(s))
+                        .map(|s| s.to_string())
+                        .collect(),
+                },
+            );
+        };
+        topic("/scan", "/lidar", &["/planner", "/web"]);
+        topic("/image", "/camera", &["/detector"]);
+        topic("/cmd_vel", "/planner", &[]);
+        g
+    }
+
+    fn rates() -> BTreeMap<String, f64> {
+        [("/scan", 40.0), ("/image", 30.0), ("/cmd_vel", 40.0)]
+            .into_iter()
+            .map(|(k, v)| (k.to_string(), v))
+            .collect()
+    }
+
+    fn names(s: &KnobSpace) -> Vec<&str> {
+        s.knobs.iter().map(|k| k.name.as_str()).collect()
+    }
+
+    #[test]
+    fn knob_table() {
+        let all = ["/lidar", "/planner", "/camera", "/detector", "/web"];
+        let mut fixed = spec();
+        fixed.knobs.cpu.nodes = vec![NodeCpuBounds {
+            node: "/camera".into(),
+            min: None,
+            max: None,
+            fixed: true,
+        }];
+        let mut tune_core = spec();
+        tune_core.knobs.cpu.fix_core_nodes = false;
+        tune_core.knobs.adaptors.enabled = false;
+        let mut slow = spec();
+        slow.knobs.adaptors.min_topic_rate_hz = 35.0;
+        let cases: Vec<(&str, PerformanceSpecSpec, Vec<&str>, Vec<&str>)> = vec![
+            (
+                "defaults: non-core nodes and edges touching non-core apps",
+                spec(),
+                all.to_vec(),
+                vec![
+                    "cpu:/camera",
+                    "cpu:/detector",
+                    "cpu:/web",
+                    "rate:/image>/detector",
+                    "rate:/scan>/web",
+                ],
+            ),
+            (
+                "a stopped app has no knobs",
+                spec(),
+                vec!["/lidar", "/planner", "/camera", "/detector"],
+                vec!["cpu:/camera", "cpu:/detector", "rate:/image>/detector"],
+            ),
+            (
+                "per-node fixed",
+                fixed,
+                all.to_vec(),
+                vec![
+                    "cpu:/detector",
+                    "cpu:/web",
+                    "rate:/image>/detector",
+                    "rate:/scan>/web",
+                ],
+            ),
+            (
+                "core nodes tuned, adaptors off",
+                tune_core,
+                all.to_vec(),
+                vec![
+                    "cpu:/lidar",
+                    "cpu:/planner",
+                    "cpu:/camera",
+                    "cpu:/detector",
+                    "cpu:/web",
+                ],
+            ),
+            (
+                "only topics above minTopicRateHz",
+                slow,
+                all.to_vec(),
+                vec![
+                    "cpu:/camera",
+                    "cpu:/detector",
+                    "cpu:/web",
+                    "rate:/scan>/web",
+                ],
+            ),
+        ];
+        for (what, spec, running, want) in cases {
+            let s = derive(&stack(), &spec, &graph(&running), &rates(), 2.0).unwrap();
+            assert_eq!(names(&s), want, "{what}");
+        }
+    }
+
+    #[test]
+    fn bounds_and_config_round_trip() {
+        let mut sp = spec();
+        sp.knobs.cpu.max = Some(1.5);
+        sp.knobs.cpu.nodes = vec![NodeCpuBounds {
+            node: "/detector".into(),
+            min: Some(0.2),
+            max: Some(3.0),
+            fixed: false,
+        }];
+        let all = ["/lidar", "/planner", "/camera", "/detector", "/web"];
+        let s = derive(&stack(), &sp, &graph(&all), &rates(), 2.0).unwrap();
+        let b: Vec<(f64, f64)> = s.knobs.iter().map(|k| (k.min, k.max)).collect();
+        assert_eq!(
+            b,
+            vec![
+                (0.05, 1.5),
+                (0.2, 2.0),
+                (0.05, 1.5),
+                (0.5, 30.0),
+                (0.5, 40.0)
+            ]
+        );
+        let x = vec![0.3, 0.75, 1.5, 4.0, 40.0];
+        let cfg = s.to_config(&x);
+        assert_eq!(cfg.cpu["/detector"], 0.75);
+        assert_eq!(cfg.adaptors[0].rate_hz, 4.0);
+        assert_eq!(s.from_config(&cfg), x);
+        // Unset knobs read as their upper bound.
+        assert_eq!(
+            s.from_config(&ResourceConfig::default()),
+            vec![1.5, 2.0, 1.5, 30.0, 40.0]
+        );
+        assert_eq!(s.optimizer_space().unwrap().dim(), 5);
+    }
+}

@@ -1,0 +1,268 @@
+//! The config library: the best known config per context, kept as
+//! `ConfigProfile` objects in the store, so `configbot get cprof -o yaml`
+//! exports them and `configbot apply -f` imports them on another robot of the
+//! same model. Context = robot model + sorted running apps and nodes of the
+//! stack + user labels (annotation `configbot.dev/context-labels: "k=v,k=v"`
+//! on the PerformanceSpec or the RobotStack). Pure except [`lookup`] and [`save`].
+
+use std::collections::BTreeMap;
+
+use configbot_dataplane::Graph;
+use configbot_manifests::{
+    API_VERSION, ConfigProfile, ConfigProfileSpec, Kind, ObjectMeta, ProfileContext, ProfileTrial,
+    ResourceConfig, RobotStack,
+};
+use configbot_optimizer::Observation;
+
+use super::knobs::KnobSpace;
+use super::measure::MetricDef;
+use crate::store::{Store, StoreError};
+
+/// Annotation carrying user context labels.
+pub const CONTEXT_LABELS: &str = "configbot.dev/context-labels";
+
+/// Parse `k=v,k=v` (blank entries ignored; an entry without `=` gets an empty value).
+pub fn parse_labels(s: &str) -> BTreeMap<String, String> {
+    s.split(',')
+        .map(str::trim)
+        .filter(|e| !e.is_empty())
+        .map(|e| match e.split_once('=') {
+            Some((k, v)) => (k.trim().to_string(), v.trim().to_string()),
+            None => (e.to_string(), String::new()),
+        })
+        .collect()
+}
+
+/// The context of a stack on a live graph.
+pub fn context(
+    stack: &RobotStack,
+    graph: &Graph,
+    labels: &BTreeMap<String, String>,
+) -> ProfileContext {
+    let mut apps = Vec::new();
+    let mut nodes = Vec::new();
+    for app in &stack.spec.apps {
+        let running: Vec<&str> = app
+            .nodes
+            .iter()
+            .filter(|n| graph.nodes.contains_key(&n.name))
+            .map(|n| n.name.as_str())
+            .collect();
+        if !running.is_empty() {
+            apps.push(app.name.clone());
+            nodes.extend(running.into_iter().map(str::to_string));
+        }
+    }
+    apps.sort();
+    nodes.sort();
+    ProfileContext {
+        robot_model: stack
+            .spec
+            .robot
+            .model
+            .clone()
+            .unwrap_or_else(|| stack.metadata.name.clone()),
+        apps,
+        nodes,
+        labels: labels.clone(),
+    }
+}
+
+/// Object name of a spec's entry for a context: `<spec>-<8 hex digits of the context key>`.
+pub fn profile_name(spec_name: &str, ctx: &ProfileContext) -> String {
+    // FNV-1a: stable across builds and platforms (unlike std's hasher).
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    for b in ctx.key().bytes() {
+        h ^= u64::from(b);
+        h = h.wrapping_mul(0x0100_0000_01b3);
+    }
+    let mut name = format!("{spec_name}-{:08x}", (h ^ (h >> 32)) as u32);
+    if name.len() > 253 {
+        name = name[name.len() - 253..]
+            .trim_start_matches(['-', '.'])
+            .to_string();
+    }
+    name
+}
+
+/// A library entry as a manifest.
+#[allow(clippy::too_many_arguments)]
+pub fn profile(
+    namespace: &str,
+    spec_name: &str,
+    ctx: &ProfileContext,
+    config: &ResourceConfig,
+    satisfaction: f64,
+    objective: Option<f64>,
+    trials: Vec<ProfileTrial>,
+) -> ConfigProfile {
+    let mut labels = BTreeMap::new();
+    labels.insert("configbot.dev/spec".to_string(), spec_name.to_string());
+    ConfigProfile {
+        api_version: API_VERSION.into(),
+        kind: Kind::ConfigProfile.name().into(),
+        metadata: ObjectMeta {
+            name: profile_name(spec_name, ctx),
+            namespace: Some(namespace.into()),
+            labels,
+            ..ObjectMeta::default()
+        },
+        spec: ConfigProfileSpec {
+            context: ctx.clone(),
+            spec_name: spec_name.into(),
+            config: config.clone(),
+            satisfaction: Some(satisfaction),
+            objective,
+            trials,
+        },
+    }
+}
+
+/// The entry for `spec_name` in `ctx` among stored profiles (any name: imported ones count).
+pub fn find(
+    profiles: &[serde_json::Value],
+    spec_name: &str,
+    ctx: &ProfileContext,
+) -> Option<ConfigProfile> {
+    profiles
+        .iter()
+        .filter_map(|v| serde_json::from_value::<ConfigProfile>(v.clone()).ok())
+        .filter(|p| p.spec.spec_name == spec_name && p.spec.context == *ctx)
+        .max_by(|a, b| {
+            let k = |p: &ConfigProfile| {
+                (
+                    p.spec.satisfaction.unwrap_or(0.0),
+                    p.spec.objective.unwrap_or(0.0),
+                )
+            };
+            k(a).partial_cmp(&k(b)).unwrap_or(std::cmp::Ordering::Equal)
+        })
+}
+
+/// Look the context up in the store.
+pub fn lookup(
+    store: &Store,
+    namespace: &str,
+    spec_name: &str,
+    ctx: &ProfileContext,
+) -> Result<Option<ConfigProfile>, StoreError> {
+    let (all, _) = store.list(Kind::ConfigProfile, Some(namespace))?;
+    Ok(find(&all, spec_name, ctx))
+}
+
+/// Store (create or replace) an entry.
+pub fn save(store: &Store, p: &ConfigProfile) -> Result<(), StoreError> {
+    let v = serde_json::to_value(p).map_err(|e| StoreError::Corrupt(e.to_string()))?;
+    store.put(Kind::ConfigProfile, v, false)?;
+    Ok(())
+}
+
+/// Trials of a profile as optimizer observations in the current knob space
+/// (values: constraint values as the optimizer saw them, objective means).
+pub fn prior_observations(
+    knobs: &KnobSpace,
+    defs: &[MetricDef],
+    p: &ConfigProfile,
+) -> Vec<Observation> {
+    p.spec
+        .trials
+        .iter()
+        .filter_map(|t| {
+            let pick = |core: bool| -> Option<Vec<f64>> {
+                defs.iter()
+                    .filter(|d| d.core == core)
+                    .map(|d| t.values.get(&d.name).copied())
+                    .collect()
+            };
+            Some(Observation {
+                x: knobs.from_config(&t.config),
+                objectives: pick(false)?,
+                constraints: pick(true)?,
+                censored: t.censored,
+            })
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use configbot_dataplane::NodeInfo;
+
+    fn stack() -> RobotStack {
+        serde_json::from_value(serde_json::json!({
+            "apiVersion": API_VERSION, "kind": "RobotStack", "metadata": {"name": "s"},
+            "spec": {"robot": {"model": "spot"}, "apps": [
+                {"name": "nav", "core": true, "nodes": [{"name": "/planner", "run": {"command": "x"}}]},
+                {"name": "det", "nodes": [{"name": "/detector", "run": {"command": "x"}},
+                                          {"name": "/camera", "run": {"command": "x"}}]}]}
+        }))
+        .unwrap()
+    }
+
+    fn graph(nodes: &[&str]) -> Graph {
+        let mut g = Graph::default();
+        for n in nodes {
+            g.nodes.insert(
+                n.to_string(),
+                NodeInfo {
+                    name: n.to_string(),
+                    uri: String::new(),
+                    pid: None,
+                },
+            );
+        }
+        g
+    }
+
+    #[test]
+    fn context_table() {
+        let none = BTreeMap::new();
+        let outdoor = parse_labels("location=outdoor, ,site = a");
+        assert_eq!(outdoor.len(), 2);
+        let cases: Vec<(&[&str], &BTreeMap<String, String>, &str)> = vec![
+            (&["/planner"], &none, "spot|nav|/planner|"),
+            (
+                &["/detector", "/planner", "/rosout"],
+                &none,
+                "spot|det,nav|/detector,/planner|",
+            ),
+            (
+                &["/camera", "/detector", "/planner"],
+                &outdoor,
+                "spot|det,nav|/camera,/detector,/planner|location=outdoor,site=a",
+            ),
+        ];
+        for (nodes, labels, key) in cases {
+            assert_eq!(context(&stack(), &graph(nodes), labels).key(), key);
+        }
+    }
+
+    #[test]
+    fn find_matches_spec_and_context_and_names_are_stable() {
+        let ctx = context(&stack(), &graph(&["/planner"]), &BTreeMap::new());
+        let other = context(
+            &stack(),
+            &graph(&["/planner", "/detector"]),
+            &BTreeMap::new(),
+        );
+        let p = profile(
+            "default",
+            "spec",
+            &ctx,
+            &ResourceConfig::default(),
+            1.0,
+            None,
+            vec![],
+        );
+        assert_eq!(p.metadata.name, profile_name("spec", &ctx));
+        assert_ne!(profile_name("spec", &ctx), profile_name("spec", &other));
+        assert!(p.metadata.name.starts_with("spec-"));
+        let stored = vec![serde_json::to_value(&p).unwrap()];
+        assert!(find(&stored, "spec", &ctx).is_some());
+        assert!(find(&stored, "spec", &other).is_none());
+        assert!(find(&stored, "other-spec", &ctx).is_none());
+        let m = configbot_manifests::decode_and_validate(&stored[0]);
+        assert!(m.is_ok(), "a saved profile is a valid manifest: {m:?}");
+    }
+}

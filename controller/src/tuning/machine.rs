@@ -1,0 +1,785 @@
+//! The tuning run as one state enum and one transition function (pure; the
+//! paper's Fig. 3): Observe (graph, context, library) → Baseline (measure the
+//! current config) → trials (apply, settle, profile; early stop of a clearly
+//! infeasible trial as a censored observation) → Verify the best (Satisfied)
+//! or apply the safest (Unsat) → Monitor; a familiar context re-applies its
+//! library config and verifies it; Remediating stops non-core apps when tuning
+//! is not allowed and a constraint is violated with no known config.
+//!
+//! [`effect`] says what IO the current state needs (so a resumed run simply
+//! redoes the effect of its persisted state); [`step`] consumes that IO's
+//! result. The runner does the IO; nothing here waits or reads a clock.
+
+use std::time::Duration;
+
+use configbot_agent::measure::{MeasureReport, MeasureRequest};
+use configbot_dataplane::Graph;
+use configbot_manifests::{
+    ConfigProfile, PerformanceSpecSpec, ProfileContext, ResourceConfig, RobotStack,
+};
+use configbot_optimizer::{Optimizer, Proposal, SafetyFloor, Settings};
+use serde::{Deserialize, Serialize};
+
+use super::knobs::{self, KnobSpace};
+use super::library;
+use super::measure::{self, Evaluation, MetricDef};
+use super::monitor::{ConstraintMonitor, Trigger};
+use super::outcome::{list_or_none, observation, problem, profile_trials, remediate, unsat_reason};
+
+/// Satisfaction a verified config must reach.
+pub const SATISFIED: f64 = 0.99;
+/// First part of a trial window, after which a clearly infeasible trial stops.
+const EARLY_STOP_MS: u64 = 2000;
+
+/// What the run knows that does not change within a step.
+#[derive(Debug, Clone)]
+pub struct Env<'a> {
+    pub stack: &'a RobotStack,
+    pub spec: &'a PerformanceSpecSpec,
+    pub namespace: &'a str,
+    pub spec_name: &'a str,
+    /// CPUs of the robot (upper CPU bound).
+    pub cpus: f64,
+    /// `spec.tuning.allowed` and no `configbot.dev/tuning-allowed: "false"` annotation.
+    pub tuning_allowed: bool,
+}
+
+impl Env<'_> {
+    pub fn defs(&self) -> Vec<MetricDef> {
+        measure::metric_defs(&self.stack.spec, self.spec)
+    }
+    fn ms(s: f64) -> u64 {
+        ((s * 1000.0).round() as u64).max(1000)
+    }
+    fn trial_ms(&self) -> u64 {
+        Self::ms(self.spec.tuning.trial_seconds)
+    }
+    fn verify_ms(&self) -> u64 {
+        Self::ms(
+            self.spec
+                .monitoring
+                .violation_window_seconds
+                .max(2.0 * self.spec.tuning.trial_seconds),
+        )
+    }
+    fn monitor_ms(&self) -> u64 {
+        Self::ms(self.spec.monitoring.violation_window_seconds.ceil())
+    }
+}
+
+/// Which config a verification is for.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "camelCase")]
+pub enum Candidate {
+    /// A trial of this run (index into `Run::trials`).
+    Trial { index: usize },
+    /// The baseline config (already good, or no knobs to tune).
+    Baseline,
+    /// A config from the library for this context.
+    Library { profile: Box<ConfigProfile> },
+}
+
+/// Where the run is. Serialised as the persisted resume point.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "state", rename_all = "camelCase")]
+pub enum State {
+    /// Read the graph and the context; look the context up in the library.
+    Observe {
+        trigger: Trigger,
+        skip_library: bool,
+    },
+    /// Measure the current config and every topic's rate.
+    Baseline {
+        graph: Graph,
+        prior: Option<Box<ConfigProfile>>,
+    },
+    TrialApply {
+        x: Vec<f64>,
+        config: ResourceConfig,
+    },
+    TrialSettle {
+        x: Vec<f64>,
+        config: ResourceConfig,
+    },
+    TrialProfile {
+        x: Vec<f64>,
+        config: ResourceConfig,
+        partial: Option<MeasureReport>,
+    },
+    VerifyApply {
+        candidate: Candidate,
+        config: ResourceConfig,
+    },
+    Verify {
+        candidate: Candidate,
+        config: ResourceConfig,
+    },
+    UnsatApply {
+        config: ResourceConfig,
+    },
+    /// Watch the constraints; `satisfied` false after Unsat (no relearning on violations then).
+    Monitor {
+        satisfied: bool,
+        config: ResourceConfig,
+    },
+    RemediateStop {
+        apps: Vec<String>,
+    },
+    RemediateApply {
+        apps: Vec<String>,
+    },
+    Remediating {
+        apps: Vec<String>,
+    },
+    RemediateUndo {
+        apps: Vec<String>,
+    },
+}
+
+/// One measured config of the run.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct TrialRecord {
+    pub config: ResourceConfig,
+    pub x: Vec<f64>,
+    pub eval: Evaluation,
+    pub censored: bool,
+}
+
+impl TrialRecord {
+    fn feasible(&self) -> bool {
+        self.eval.feasible && !self.censored
+    }
+}
+
+/// The whole persisted run.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct Run {
+    pub state: State,
+    /// Spec generation the run is for.
+    pub generation: i64,
+    pub context: Option<ProfileContext>,
+    pub knobs: KnobSpace,
+    pub baseline: Option<TrialRecord>,
+    pub trials: Vec<TrialRecord>,
+    pub optimizer: Option<Optimizer>,
+    /// Trials whose config failed verification.
+    pub rejected: Vec<usize>,
+    /// The config being monitored came from this candidate.
+    pub applied: Option<Candidate>,
+    pub monitor: ConstraintMonitor,
+    /// Human explanation of the outcome.
+    pub reason: Option<String>,
+    /// Library hits in this run (for status and tests).
+    pub library_hits: u32,
+    /// The config this run last applied (what a baseline measures).
+    #[serde(default)]
+    pub current: ResourceConfig,
+}
+
+impl Run {
+    pub fn new(generation: i64, trigger: Trigger) -> Run {
+        Run {
+            state: State::Observe {
+                trigger,
+                skip_library: false,
+            },
+            generation,
+            context: None,
+            knobs: KnobSpace::default(),
+            baseline: None,
+            trials: Vec::new(),
+            optimizer: None,
+            rejected: Vec::new(),
+            applied: None,
+            monitor: ConstraintMonitor::default(),
+            reason: None,
+            library_hits: 0,
+            current: ResourceConfig::default(),
+        }
+    }
+
+    /// The state to redo after a restart: an unfinished trial or verification
+    /// starts again from applying its config (nothing finished is repeated).
+    pub fn resumed(mut self) -> Run {
+        self.state = match self.state {
+            State::TrialSettle { x, config } | State::TrialProfile { x, config, .. } => {
+                State::TrialApply { x, config }
+            }
+            State::Verify { candidate, config } => State::VerifyApply { candidate, config },
+            s => s,
+        };
+        self
+    }
+
+    /// Status phase.
+    pub fn phase(&self) -> &'static str {
+        match &self.state {
+            State::Observe { .. } | State::Baseline { .. } => "Baseline",
+            State::TrialApply { .. } | State::TrialSettle { .. } | State::TrialProfile { .. } => {
+                "Tuning"
+            }
+            State::VerifyApply { .. } | State::Verify { .. } => "Satisfied",
+            State::UnsatApply { .. }
+            | State::Monitor {
+                satisfied: false, ..
+            } => "Unsat",
+            State::Monitor {
+                satisfied: true, ..
+            } => "Monitoring",
+            State::RemediateStop { .. }
+            | State::RemediateApply { .. }
+            | State::Remediating { .. }
+            | State::RemediateUndo { .. } => "Remediating",
+        }
+    }
+}
+
+/// The IO a state needs.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Effect {
+    /// Read the graph; compute the context; look it up in the library.
+    Observe,
+    Apply(ResourceConfig),
+    Sleep(Duration),
+    Measure(MeasureRequest),
+    StopApps(Vec<String>),
+    StartApps(Vec<String>),
+}
+
+/// The result of an effect (or an outside trigger).
+#[derive(Debug, Clone, PartialEq)]
+pub enum Input {
+    Observed {
+        graph: Graph,
+        context: ProfileContext,
+        known: Option<Box<ConfigProfile>>,
+    },
+    Applied,
+    Slept,
+    Measured(MeasureReport),
+    AppsStopped,
+    AppsStarted,
+    Trigger(Trigger),
+}
+
+/// Something to report or store.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Output {
+    Event {
+        warning: bool,
+        reason: &'static str,
+        message: String,
+    },
+    SaveProfile(Box<ConfigProfile>),
+}
+
+pub(crate) fn normal(reason: &'static str, message: String) -> Output {
+    Output::Event {
+        warning: false,
+        reason,
+        message,
+    }
+}
+
+pub(crate) fn warning(reason: &'static str, message: String) -> Output {
+    Output::Event {
+        warning: true,
+        reason,
+        message,
+    }
+}
+
+/// The effect of the current state.
+pub fn effect(run: &Run, env: &Env<'_>) -> Effect {
+    let defs = env.defs();
+    let probe = |ms: u64| Effect::Measure(measure::request(&defs, &[], ms, 1000));
+    match &run.state {
+        State::Observe { .. } => Effect::Observe,
+        State::Baseline { graph, .. } => {
+            let topics: Vec<String> = graph.topics.keys().cloned().collect();
+            Effect::Measure(measure::request(&defs, &topics, env.trial_ms(), 1000))
+        }
+        State::TrialApply { config, .. } | State::VerifyApply { config, .. } => {
+            Effect::Apply(config.clone())
+        }
+        State::UnsatApply { config } => Effect::Apply(config.clone()),
+        State::TrialSettle { .. } => {
+            Effect::Sleep(Duration::from_secs_f64(env.spec.tuning.settle_seconds))
+        }
+        State::TrialProfile { partial, .. } => {
+            let total = env.trial_ms();
+            let done = partial.as_ref().map_or(0, |p| p.duration_ms);
+            let chunk = if done == 0 && total > EARLY_STOP_MS {
+                EARLY_STOP_MS
+            } else {
+                total - done.min(total)
+            };
+            probe(chunk.max(1000))
+        }
+        State::Verify { .. } => probe(env.verify_ms()),
+        State::Monitor { .. } | State::Remediating { .. } => probe(env.monitor_ms()),
+        State::RemediateStop { apps } => Effect::StopApps(apps.clone()),
+        State::RemediateApply { .. } => Effect::Apply(ResourceConfig::default()),
+        State::RemediateUndo { apps } => Effect::StartApps(apps.clone()),
+    }
+}
+
+/// Advance the run by one input. Inputs that do not fit the state are ignored.
+pub fn step(mut run: Run, input: Input, env: &Env<'_>) -> (Run, Vec<Output>) {
+    let mut out = Vec::new();
+    let defs = env.defs();
+    let state = std::mem::replace(
+        &mut run.state,
+        State::Observe {
+            trigger: Trigger::SpecChanged,
+            skip_library: false,
+        },
+    );
+    if input == Input::Applied {
+        match &state {
+            State::TrialApply { config, .. }
+            | State::VerifyApply { config, .. }
+            | State::UnsatApply { config } => run.current = config.clone(),
+            State::RemediateApply { .. } => run.current = ResourceConfig::default(),
+            _ => {}
+        }
+    }
+    run.state = match (state, input) {
+        // Outside triggers: while monitoring (or verifying a library config), re-observe.
+        (State::Monitor { .. }, Input::Trigger(t)) => {
+            out.push(warning(t.reason(), t.message()));
+            let skip = matches!(t, Trigger::ConstraintViolated { .. });
+            State::Observe {
+                trigger: t,
+                skip_library: skip,
+            }
+        }
+        (
+            State::Observe { skip_library, .. },
+            Input::Observed {
+                graph,
+                context,
+                known,
+            },
+        ) => {
+            run.context = Some(context.clone());
+            match known {
+                Some(p) if !skip_library => {
+                    run.library_hits += 1;
+                    out.push(normal(
+                        "LibraryHit",
+                        format!(
+                            "familiar context {}: re-applying profile {} without trials",
+                            context.key(),
+                            p.metadata.name
+                        ),
+                    ));
+                    let config = p.spec.config.clone();
+                    State::VerifyApply {
+                        candidate: Candidate::Library { profile: p },
+                        config,
+                    }
+                }
+                known => {
+                    run.trials.clear();
+                    run.rejected.clear();
+                    run.optimizer = None;
+                    run.baseline = None;
+                    State::Baseline {
+                        graph,
+                        prior: known,
+                    }
+                }
+            }
+        }
+        (State::Baseline { graph, prior }, Input::Measured(r)) => {
+            baseline_done(&mut run, env, &defs, &graph, prior.as_deref(), &r, &mut out)
+        }
+        (State::TrialApply { x, config }, Input::Applied) => {
+            if env.spec.tuning.settle_seconds > 0.0 {
+                State::TrialSettle { x, config }
+            } else {
+                State::TrialProfile {
+                    x,
+                    config,
+                    partial: None,
+                }
+            }
+        }
+        (State::TrialSettle { x, config }, Input::Slept) => State::TrialProfile {
+            x,
+            config,
+            partial: None,
+        },
+        (State::TrialProfile { x, config, partial }, Input::Measured(r)) => {
+            let report = match &partial {
+                Some(p) => measure::concat(p, &r),
+                None => r,
+            };
+            let complete = report.duration_ms >= env.trial_ms();
+            let floor = env.spec.tuning.safety_floor.unwrap_or(0.8);
+            let censored =
+                !complete && measure::clearly_infeasible(&defs, &report, floor).is_some();
+            if complete || censored {
+                record_trial(&mut run, env, &defs, x, config, &report, censored, &mut out);
+                next_trial(&mut run, env, &defs, &mut out)
+            } else {
+                State::TrialProfile {
+                    x,
+                    config,
+                    partial: Some(report),
+                }
+            }
+        }
+        (State::VerifyApply { candidate, config }, Input::Applied) => {
+            State::Verify { candidate, config }
+        }
+        (State::Verify { candidate, config }, Input::Measured(r)) => {
+            verified(&mut run, env, &defs, candidate, config, &r, &mut out)
+        }
+        (State::UnsatApply { config }, Input::Applied) => {
+            run.monitor = ConstraintMonitor::default();
+            State::Monitor {
+                satisfied: false,
+                config,
+            }
+        }
+        (State::Monitor { satisfied, config }, Input::Measured(r)) => {
+            let ok = measure::windows_ok(&defs, &r);
+            let sub = r.sub_window_ms as f64 / 1000.0;
+            let window = env.spec.monitoring.violation_window_seconds;
+            match run.monitor.observe(&ok, sub, window) {
+                Some(t) if satisfied => {
+                    out.push(warning(t.reason(), t.message()));
+                    if env.tuning_allowed {
+                        State::Observe {
+                            trigger: t,
+                            skip_library: true,
+                        }
+                    } else {
+                        remediate(env, run.context.as_ref(), &mut out)
+                    }
+                }
+                _ => State::Monitor { satisfied, config },
+            }
+        }
+        (State::RemediateStop { apps }, Input::AppsStopped) => State::RemediateApply { apps },
+        (State::RemediateApply { apps }, Input::Applied) => {
+            run.monitor = ConstraintMonitor::default();
+            State::Remediating { apps }
+        }
+        (State::Remediating { apps }, Input::Measured(r)) => {
+            let ok = measure::windows_ok(&defs, &r);
+            run.monitor
+                .observe(&ok, r.sub_window_ms as f64 / 1000.0, f64::INFINITY);
+            if env.tuning_allowed {
+                State::RemediateUndo { apps }
+            } else {
+                State::Remediating { apps }
+            }
+        }
+        (State::RemediateUndo { apps }, Input::AppsStarted) => {
+            out.push(normal(
+                "RemediationUndone",
+                format!(
+                    "tuning allowed again: restarted {}; relearning",
+                    list_or_none(&apps)
+                ),
+            ));
+            State::Observe {
+                trigger: Trigger::TuningAllowed,
+                skip_library: false,
+            }
+        }
+        (s, _) => s,
+    };
+    (run, out)
+}
+
+fn baseline_done(
+    run: &mut Run,
+    env: &Env<'_>,
+    defs: &[MetricDef],
+    graph: &Graph,
+    prior: Option<&ConfigProfile>,
+    r: &MeasureReport,
+    out: &mut Vec<Output>,
+) -> State {
+    let s = env.spec.tuning.scalarization;
+    let eval = measure::evaluate(defs, r, s);
+    let rates = measure::topic_rates(r);
+    run.knobs = match knobs::derive(&env.stack.spec, env.spec, graph, &rates, env.cpus) {
+        Ok(k) => k,
+        Err(e) => {
+            out.push(warning("KnobsInvalid", e.to_string()));
+            KnobSpace::default()
+        }
+    };
+    // The config running now, as the knobs see it (unset knobs at their upper bound).
+    let x = run.knobs.from_config(&run.current);
+    let config = run.knobs.to_config(&x);
+    out.push(normal(
+        "Baseline",
+        format!(
+            "baseline: satisfaction {:.1} %, {} knobs: {}",
+            eval.satisfaction * 100.0,
+            run.knobs.knobs.len(),
+            run.knobs
+                .knobs
+                .iter()
+                .map(|k| k.name.as_str())
+                .collect::<Vec<_>>()
+                .join(", ")
+        ),
+    ));
+    let rec = TrialRecord {
+        config,
+        x,
+        eval,
+        censored: false,
+    };
+    let holds = rec.eval.satisfaction >= SATISFIED && rec.feasible();
+    run.baseline = Some(rec.clone());
+    if !env.tuning_allowed {
+        return if holds {
+            run.reason = Some("tuning is not allowed now; the current config holds".into());
+            State::VerifyApply {
+                candidate: Candidate::Baseline,
+                config: rec.config,
+            }
+        } else {
+            remediate(env, run.context.as_ref(), out)
+        };
+    }
+    if run.knobs.knobs.is_empty() {
+        return finish(run, env, defs, out);
+    }
+    let problem = match problem(&run.knobs, defs, env) {
+        Ok(p) => p,
+        Err(e) => {
+            out.push(warning("KnobsInvalid", e));
+            return finish(run, env, defs, out);
+        }
+    };
+    let settings = Settings {
+        seed: env.spec.tuning.seed,
+        max_trials: env.spec.tuning.max_trials as usize + 1,
+        safety: env.spec.tuning.safety_floor.map(|f| SafetyFloor {
+            fraction_of_target: f,
+            beta: 2.0,
+        }),
+        candidates: 400,
+        refine_steps: 15,
+        ..Settings::default()
+    };
+    let priors = prior
+        .map(|p| library::prior_observations(&run.knobs, defs, p))
+        .unwrap_or_default();
+    if !priors.is_empty() {
+        out.push(normal(
+            "WarmStart",
+            format!(
+                "relearning warm-started from {} library trials",
+                priors.len()
+            ),
+        ));
+    }
+    let opt = Optimizer::with_prior_observations(problem, settings, &rec.x, priors)
+        .and_then(|mut o| o.tell(observation(&rec)).map(|_| o));
+    match opt {
+        Ok(o) => run.optimizer = Some(o),
+        Err(e) => {
+            out.push(warning("OptimizerFailed", e.to_string()));
+            return finish(run, env, defs, out);
+        }
+    }
+    next_trial(run, env, defs, out)
+}
+
+#[allow(clippy::too_many_arguments)]
+fn record_trial(
+    run: &mut Run,
+    env: &Env<'_>,
+    defs: &[MetricDef],
+    x: Vec<f64>,
+    config: ResourceConfig,
+    report: &MeasureReport,
+    censored: bool,
+    out: &mut Vec<Output>,
+) {
+    let eval = measure::evaluate(defs, report, env.spec.tuning.scalarization);
+    let rec = TrialRecord {
+        config,
+        x,
+        eval,
+        censored,
+    };
+    if let Some(o) = &mut run.optimizer
+        && let Err(e) = o.tell(observation(&rec))
+    {
+        out.push(warning("OptimizerFailed", e.to_string()));
+    }
+    out.push(normal(
+        "Trial",
+        format!(
+            "trial {}: satisfaction {:.1} %, objective {}, {}{}",
+            run.trials.len(),
+            rec.eval.satisfaction * 100.0,
+            rec.eval
+                .objective
+                .map_or("-".to_string(), |o| format!("{o:.3}")),
+            if rec.feasible() {
+                "feasible"
+            } else {
+                "infeasible"
+            },
+            if censored { " (stopped early)" } else { "" }
+        ),
+    ));
+    run.trials.push(rec);
+}
+
+fn next_trial(run: &mut Run, env: &Env<'_>, defs: &[MetricDef], out: &mut Vec<Output>) -> State {
+    if run.trials.len() < env.spec.tuning.max_trials as usize
+        && let Some(o) = &mut run.optimizer
+    {
+        match o.ask() {
+            Ok(Proposal::Try(x)) => {
+                let config = run.knobs.to_config(&x);
+                let x = run.knobs.from_config(&config);
+                return State::TrialApply { x, config };
+            }
+            Ok(Proposal::Stop(r)) => {
+                out.push(normal("TuningStopped", format!("optimizer stopped: {r:?}")))
+            }
+            Err(e) => out.push(warning("OptimizerFailed", e.to_string())),
+        }
+    }
+    finish(run, env, defs, out)
+}
+
+/// Pick the best unrejected feasible trial to verify, or end Unsat with the safest config.
+fn finish(run: &mut Run, env: &Env<'_>, defs: &[MetricDef], out: &mut Vec<Output>) -> State {
+    let best = run
+        .trials
+        .iter()
+        .enumerate()
+        .filter(|(i, t)| t.feasible() && !run.rejected.contains(i))
+        .max_by(|(_, a), (_, b)| {
+            let k = |t: &TrialRecord| (t.eval.objective.unwrap_or(0.0), t.eval.satisfaction);
+            k(a).partial_cmp(&k(b)).unwrap_or(std::cmp::Ordering::Equal)
+        })
+        .map(|(i, t)| (i, t.config.clone()));
+    if let Some((index, config)) = best {
+        return State::VerifyApply {
+            candidate: Candidate::Trial { index },
+            config,
+        };
+    }
+    if let Some(b) = &run.baseline
+        && b.feasible()
+        && b.eval.satisfaction >= SATISFIED
+        && run.knobs.knobs.is_empty()
+    {
+        return State::VerifyApply {
+            candidate: Candidate::Baseline,
+            config: b.config.clone(),
+        };
+    }
+    let _ = env;
+    let (config, reason) = unsat_reason(run, defs);
+    out.push(warning("Unsat", reason.clone()));
+    run.reason = Some(reason);
+    State::UnsatApply { config }
+}
+
+fn verified(
+    run: &mut Run,
+    env: &Env<'_>,
+    defs: &[MetricDef],
+    candidate: Candidate,
+    config: ResourceConfig,
+    r: &MeasureReport,
+    out: &mut Vec<Output>,
+) -> State {
+    let sat = measure::satisfaction(defs, r);
+    if sat >= SATISFIED {
+        let eval = measure::evaluate(defs, r, env.spec.tuning.scalarization);
+        out.push(normal(
+            "Satisfied",
+            format!(
+                "config from {} holds: satisfaction {:.1} %, objective {}",
+                match &candidate {
+                    Candidate::Trial { index } => format!("trial {index}"),
+                    Candidate::Baseline => "the baseline".into(),
+                    Candidate::Library { profile } =>
+                        format!("library profile {}", profile.metadata.name),
+                },
+                sat * 100.0,
+                eval.objective
+                    .map_or("-".to_string(), |o| format!("{o:.3}"))
+            ),
+        ));
+        if let (Candidate::Trial { .. }, Some(ctx)) = (&candidate, &run.context) {
+            out.push(Output::SaveProfile(Box::new(library::profile(
+                env.namespace,
+                env.spec_name,
+                ctx,
+                &config,
+                sat,
+                eval.objective,
+                profile_trials(run, defs),
+            ))));
+        }
+        if !matches!(candidate, Candidate::Baseline) {
+            run.reason = None;
+        }
+        run.applied = Some(candidate);
+        run.monitor = ConstraintMonitor::default();
+        return State::Monitor {
+            satisfied: true,
+            config,
+        };
+    }
+    match candidate {
+        Candidate::Trial { index } => {
+            out.push(warning(
+                "VerificationFailed",
+                format!(
+                    "trial {index} held in only {:.1} % of the windows; trying the next best",
+                    sat * 100.0
+                ),
+            ));
+            run.rejected.push(index);
+            finish(run, env, defs, out)
+        }
+        Candidate::Baseline => {
+            if env.tuning_allowed {
+                let (config, reason) = unsat_reason(run, defs);
+                out.push(warning("Unsat", reason.clone()));
+                run.reason = Some(reason);
+                State::UnsatApply { config }
+            } else {
+                remediate(env, run.context.as_ref(), out)
+            }
+        }
+        Candidate::Library { .. } => {
+            let t = Trigger::LibraryConfigFailed { satisfaction: sat };
+            out.push(warning(t.reason(), t.message()));
+            if env.tuning_allowed {
+                // Relearn (fresh graph), warm-started from the profile's trials:
+                // Observe skips the library hit and hands the profile to Baseline.
+                State::Observe {
+                    trigger: t,
+                    skip_library: true,
+                }
+            } else {
+                remediate(env, run.context.as_ref(), out)
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+#[path = "machine_tests.rs"]
+mod tests;

@@ -1,0 +1,675 @@
+//! Table tests of the transition function: (state, input, environment) →
+//! (next state, events), and the effect each state asks for.
+
+use configbot_agent::measure::{MeasureReport, Probe, ProbeSeries};
+use configbot_dataplane::{Graph, NodeInfo, TopicInfo};
+use configbot_manifests::{PerformanceSpec, RobotStack};
+
+use super::*;
+
+fn stack() -> RobotStack {
+    let n = |name: &str| serde_json::json!({"name": name, "run": {"command": "x"}});
+    serde_json::from_value(serde_json::json!({
+        "apiVersion": "configbot.dev/v1alpha1", "kind": "RobotStack", "metadata": {"name": "s"},
+        "spec": {"robot": {"model": "m", "cpus": 2}, "apps": [
+            {"name": "nav", "core": true, "nodes": [n("/planner")]},
+            {"name": "det", "nodes": [n("/camera"), n("/detector")]}]}
+    }))
+    .unwrap()
+}
+
+fn spec(settle: f64, max_trials: u32) -> PerformanceSpec {
+    serde_json::from_value(serde_json::json!({
+        "apiVersion": "configbot.dev/v1alpha1", "kind": "PerformanceSpec", "metadata": {"name": "p"},
+        "spec": {"stackRef": {"name": "s"},
+            "metrics": [
+                {"name": "cmd", "app": "nav", "source": {"topicRate": {"topic": "/cmd_vel"}}, "target": {"atLeast": 35}},
+                {"name": "det", "app": "det", "source": {"topicRate": {"topic": "/detections"}}, "target": {"atLeast": 10}}],
+            "tuning": {"settleSeconds": settle, "maxTrials": max_trials, "trialSeconds": 5}}
+    }))
+    .unwrap()
+}
+
+fn graph() -> Graph {
+    let mut g = Graph::default();
+    for n in ["/planner", "/camera", "/detector"] {
+        g.nodes.insert(
+            n.into(),
+            NodeInfo {
+                name: n.into(),
+                uri: String::new(),
+                pid: None,
+            },
+        );
+    }
+    g.topics.insert(
+        "/image".into(),
+        TopicInfo {
+            name: "/image".into(),
+            msg_type: "m/M".into(),
+            publishers: ["/camera".to_string()].into(),
+            subscribers: ["/detector".to_string()].into(),
+        },
+    );
+    g
+}
+
+fn ctx() -> ProfileContext {
+    ProfileContext {
+        robot_model: "m".into(),
+        apps: vec!["det".into(), "nav".into()],
+        nodes: vec!["/camera".into(), "/detector".into(), "/planner".into()],
+        labels: Default::default(),
+    }
+}
+
+/// A report with `cmd` and `det` values per 1 s sub-window (and /image at 30 Hz).
+fn report(cmd: &[f64], det: f64) -> Input {
+    let s = |topic: &str, v: Vec<f64>| ProbeSeries {
+        probe: Probe::TopicRate {
+            topic: topic.into(),
+            subscriber: None,
+        },
+        mean: v.iter().sum::<f64>() / v.len() as f64,
+        values: v,
+    };
+    Input::Measured(MeasureReport {
+        started_unix_ms: 0,
+        duration_ms: 1000 * cmd.len() as u64,
+        sub_window_ms: 1000,
+        series: vec![
+            s("/cmd_vel", cmd.to_vec()),
+            s("/detections", vec![det; cmd.len()]),
+            s("/image", vec![30.0; cmd.len()]),
+        ],
+    })
+}
+
+fn profile() -> Box<ConfigProfile> {
+    Box::new(library::profile(
+        "default",
+        "p",
+        &ctx(),
+        &ResourceConfig::default(),
+        1.0,
+        Some(0.5),
+        vec![],
+    ))
+}
+
+fn with(state: State) -> Run {
+    let mut r = Run::new(1, Trigger::SpecChanged);
+    r.state = state;
+    r.context = Some(ctx());
+    r
+}
+
+fn name(s: &State) -> &'static str {
+    match s {
+        State::Observe { .. } => "Observe",
+        State::Baseline { .. } => "Baseline",
+        State::TrialApply { .. } => "TrialApply",
+        State::TrialSettle { .. } => "TrialSettle",
+        State::TrialProfile { .. } => "TrialProfile",
+        State::VerifyApply { .. } => "VerifyApply",
+        State::Verify { .. } => "Verify",
+        State::UnsatApply { .. } => "UnsatApply",
+        State::Monitor { .. } => "Monitor",
+        State::RemediateStop { .. } => "RemediateStop",
+        State::RemediateApply { .. } => "RemediateApply",
+        State::Remediating { .. } => "Remediating",
+        State::RemediateUndo { .. } => "RemediateUndo",
+    }
+}
+
+fn reasons(out: &[Output]) -> Vec<&'static str> {
+    out.iter()
+        .map(|o| match o {
+            Output::Event { reason, .. } => *reason,
+            Output::SaveProfile(_) => "<save>",
+        })
+        .collect()
+}
+
+fn observe(skip: bool) -> State {
+    State::Observe {
+        trigger: Trigger::SpecChanged,
+        skip_library: skip,
+    }
+}
+
+fn cfg() -> ResourceConfig {
+    let mut c = ResourceConfig::default();
+    c.cpu.insert("/detector".into(), 0.5);
+    c
+}
+
+fn observed(known: bool) -> Input {
+    Input::Observed {
+        graph: graph(),
+        context: ctx(),
+        known: known.then(profile),
+    }
+}
+
+const OK: [f64; 5] = [40.0; 5];
+const BAD: [f64; 5] = [20.0; 5];
+
+#[test]
+fn transition_table() {
+    let st = stack();
+    let sp = spec(1.0, 5);
+    let sp0 = spec(0.0, 5);
+    let trial = |partial: Option<MeasureReport>| State::TrialProfile {
+        x: vec![],
+        config: cfg(),
+        partial,
+    };
+    let Input::Measured(two_ok) = report(&[40.0, 40.0], 5.0) else {
+        unreachable!()
+    };
+    // (case, state, input, settle-free spec?, tuning allowed, next state, event reasons)
+    type Case = (
+        &'static str,
+        State,
+        Input,
+        bool,
+        bool,
+        &'static str,
+        Vec<&'static str>,
+    );
+    let cases: Vec<Case> = vec![
+        (
+            "unknown context measures a baseline",
+            observe(false),
+            observed(false),
+            false,
+            true,
+            "Baseline",
+            vec![],
+        ),
+        (
+            "familiar context re-applies at once",
+            observe(false),
+            observed(true),
+            false,
+            true,
+            "VerifyApply",
+            vec!["LibraryHit"],
+        ),
+        (
+            "relearning skips the library",
+            observe(true),
+            observed(true),
+            false,
+            true,
+            "Baseline",
+            vec![],
+        ),
+        (
+            "violating baseline starts trials",
+            State::Baseline {
+                graph: graph(),
+                prior: None,
+            },
+            report(&BAD, 5.0),
+            false,
+            true,
+            "TrialApply",
+            vec!["Baseline"],
+        ),
+        (
+            "warm start from the library's trials",
+            State::Baseline {
+                graph: graph(),
+                prior: Some(profile()),
+            },
+            report(&BAD, 5.0),
+            false,
+            true,
+            "TrialApply",
+            vec!["Baseline"],
+        ),
+        (
+            "tuning not allowed + violated: remediate",
+            State::Baseline {
+                graph: graph(),
+                prior: None,
+            },
+            report(&BAD, 5.0),
+            false,
+            false,
+            "RemediateStop",
+            vec!["Baseline", "Remediated"],
+        ),
+        (
+            "tuning not allowed + holds: keep it",
+            State::Baseline {
+                graph: graph(),
+                prior: None,
+            },
+            report(&OK, 5.0),
+            false,
+            false,
+            "VerifyApply",
+            vec!["Baseline"],
+        ),
+        (
+            "applied trial settles",
+            State::TrialApply {
+                x: vec![],
+                config: cfg(),
+            },
+            Input::Applied,
+            false,
+            true,
+            "TrialSettle",
+            vec![],
+        ),
+        (
+            "no settle time: profile at once",
+            State::TrialApply {
+                x: vec![],
+                config: cfg(),
+            },
+            Input::Applied,
+            true,
+            true,
+            "TrialProfile",
+            vec![],
+        ),
+        (
+            "settled trial profiles",
+            State::TrialSettle {
+                x: vec![],
+                config: cfg(),
+            },
+            Input::Slept,
+            false,
+            true,
+            "TrialProfile",
+            vec![],
+        ),
+        (
+            "promising first part: profile the rest",
+            trial(None),
+            report(&[40.0, 40.0], 5.0),
+            false,
+            true,
+            "TrialProfile",
+            vec![],
+        ),
+        (
+            "clearly infeasible first part: stop early",
+            trial(None),
+            report(&[20.0, 21.0], 5.0),
+            false,
+            true,
+            "UnsatApply",
+            vec!["Trial", "Unsat"],
+        ),
+        (
+            "complete trial is recorded",
+            trial(Some(two_ok)),
+            report(&[40.0, 40.0, 40.0], 5.0),
+            false,
+            true,
+            "VerifyApply",
+            vec!["Trial"],
+        ),
+        (
+            "mismatched input is ignored",
+            State::TrialApply {
+                x: vec![],
+                config: cfg(),
+            },
+            Input::Slept,
+            false,
+            true,
+            "TrialApply",
+            vec![],
+        ),
+        (
+            "verified trial: monitor and save",
+            State::Verify {
+                candidate: Candidate::Trial { index: 0 },
+                config: cfg(),
+            },
+            report(&[40.0; 10], 5.0),
+            false,
+            true,
+            "Monitor",
+            vec!["Satisfied", "<save>"],
+        ),
+        (
+            "failed library config: relearn",
+            State::Verify {
+                candidate: Candidate::Library { profile: profile() },
+                config: cfg(),
+            },
+            report(&[20.0; 10], 5.0),
+            false,
+            true,
+            "Observe",
+            vec!["LibraryConfigFailed"],
+        ),
+        (
+            "failed library config, no tuning: remediate",
+            State::Verify {
+                candidate: Candidate::Library { profile: profile() },
+                config: cfg(),
+            },
+            report(&[20.0; 10], 5.0),
+            false,
+            false,
+            "RemediateStop",
+            vec!["LibraryConfigFailed", "Remediated"],
+        ),
+        (
+            "sustained violation: relearn",
+            State::Monitor {
+                satisfied: true,
+                config: cfg(),
+            },
+            report(&BAD, 5.0),
+            false,
+            true,
+            "Observe",
+            vec!["ConstraintViolated"],
+        ),
+        (
+            "sustained violation, no tuning: remediate",
+            State::Monitor {
+                satisfied: true,
+                config: cfg(),
+            },
+            report(&BAD, 5.0),
+            false,
+            false,
+            "RemediateStop",
+            vec!["ConstraintViolated", "Remediated"],
+        ),
+        (
+            "short violation: keep monitoring",
+            State::Monitor {
+                satisfied: true,
+                config: cfg(),
+            },
+            report(&[20.0, 40.0, 20.0, 40.0, 20.0], 5.0),
+            false,
+            true,
+            "Monitor",
+            vec![],
+        ),
+        (
+            "after Unsat violations do not relearn",
+            State::Monitor {
+                satisfied: false,
+                config: cfg(),
+            },
+            report(&BAD, 5.0),
+            false,
+            true,
+            "Monitor",
+            vec![],
+        ),
+        (
+            "context change while monitoring",
+            State::Monitor {
+                satisfied: true,
+                config: cfg(),
+            },
+            Input::Trigger(Trigger::ContextChanged {
+                from: "a".into(),
+                to: "b".into(),
+                by: "exec".into(),
+            }),
+            false,
+            true,
+            "Observe",
+            vec!["ContextChanged"],
+        ),
+        (
+            "apps stopped: lift limits",
+            State::RemediateStop {
+                apps: vec!["det".into()],
+            },
+            Input::AppsStopped,
+            false,
+            false,
+            "RemediateApply",
+            vec![],
+        ),
+        (
+            "limits lifted: remediating",
+            State::RemediateApply {
+                apps: vec!["det".into()],
+            },
+            Input::Applied,
+            false,
+            false,
+            "Remediating",
+            vec![],
+        ),
+        (
+            "still not allowed",
+            State::Remediating {
+                apps: vec!["det".into()],
+            },
+            report(&OK, 5.0),
+            false,
+            false,
+            "Remediating",
+            vec![],
+        ),
+        (
+            "allowed again: undo",
+            State::Remediating {
+                apps: vec!["det".into()],
+            },
+            report(&OK, 5.0),
+            false,
+            true,
+            "RemediateUndo",
+            vec![],
+        ),
+        (
+            "undone: relearn",
+            State::RemediateUndo {
+                apps: vec!["det".into()],
+            },
+            Input::AppsStarted,
+            false,
+            true,
+            "Observe",
+            vec!["RemediationUndone"],
+        ),
+        (
+            "unsat config applied: monitor",
+            State::UnsatApply { config: cfg() },
+            Input::Applied,
+            false,
+            true,
+            "Monitor",
+            vec![],
+        ),
+    ];
+    for (case, state, input, no_settle, allowed, want, want_events) in cases {
+        let sp = if no_settle { &sp0 } else { &sp };
+        let env = Env {
+            stack: &st,
+            spec: &sp.spec,
+            namespace: "default",
+            spec_name: "p",
+            cpus: 2.0,
+            tuning_allowed: allowed,
+        };
+        let (run, out) = step(with(state), input, &env);
+        assert_eq!(name(&run.state), want, "{case}");
+        assert_eq!(reasons(&out), want_events, "{case}");
+    }
+}
+
+fn env<'a>(st: &'a RobotStack, sp: &'a PerformanceSpec) -> Env<'a> {
+    Env {
+        stack: st,
+        spec: &sp.spec,
+        namespace: "default",
+        spec_name: "p",
+        cpus: 2.0,
+        tuning_allowed: true,
+    }
+}
+
+#[test]
+fn early_stop_is_a_censored_observation() {
+    let (st, sp) = (stack(), spec(0.0, 5));
+    let env = env(&st, &sp);
+    let (run, _) = step(
+        with(State::Baseline {
+            graph: graph(),
+            prior: None,
+        }),
+        report(&BAD, 5.0),
+        &env,
+    );
+    assert_eq!(run.knobs.knobs.len(), 3, "{:?}", run.knobs);
+    let State::TrialApply { .. } = run.state else {
+        panic!("{:?}", run.state)
+    };
+    let (run, _) = step(run, Input::Applied, &env);
+    let (run, _) = step(run, report(&[10.0, 12.0], 5.0), &env);
+    assert_eq!(run.trials.len(), 1);
+    assert!(run.trials[0].censored);
+    assert!(!run.trials[0].eval.feasible);
+    let o = run.optimizer.as_ref().unwrap();
+    assert_eq!(o.observations().len(), 2, "baseline and the censored trial");
+    assert!(o.observations()[1].censored);
+    assert_eq!(name(&run.state), "TrialApply", "the next trial");
+}
+
+#[test]
+fn best_failing_verification_tries_the_next_best_then_unsat() {
+    let (st, sp) = (stack(), spec(0.0, 5));
+    let env = env(&st, &sp);
+    let mut run = with(State::Verify {
+        candidate: Candidate::Trial { index: 1 },
+        config: cfg(),
+    });
+    let Input::Measured(good) = report(&OK, 8.0) else {
+        unreachable!()
+    };
+    let Input::Measured(better) = report(&OK, 9.0) else {
+        unreachable!()
+    };
+    for r in [&good, &better] {
+        run.trials.push(TrialRecord {
+            config: cfg(),
+            x: vec![],
+            eval: measure::evaluate(&env.defs(), r, Default::default()),
+            censored: false,
+        });
+    }
+    let (run, out) = step(run, report(&[20.0; 10], 5.0), &env);
+    assert_eq!(reasons(&out), vec!["VerificationFailed"]);
+    assert_eq!(
+        run.state,
+        State::VerifyApply {
+            candidate: Candidate::Trial { index: 0 },
+            config: cfg()
+        }
+    );
+    let (run, _) = step(run, Input::Applied, &env);
+    let (run, out) = step(run, report(&[20.0; 10], 5.0), &env);
+    assert_eq!(reasons(&out), vec!["VerificationFailed", "Unsat"]);
+    assert_eq!(name(&run.state), "UnsatApply");
+}
+
+#[test]
+fn effects_and_resume_points() {
+    let (st, sp) = (stack(), spec(1.0, 5));
+    let env = env(&st, &sp);
+    let measure_ms = |s: State| match effect(&with(s), &env) {
+        Effect::Measure(r) => r.duration_ms,
+        e => panic!("{e:?}"),
+    };
+    assert_eq!(effect(&with(observe(false)), &env), Effect::Observe);
+    assert_eq!(
+        effect(
+            &with(State::TrialSettle {
+                x: vec![],
+                config: cfg()
+            }),
+            &env
+        ),
+        Effect::Sleep(Duration::from_secs(1))
+    );
+    let Input::Measured(two) = report(&[40.0, 40.0], 5.0) else {
+        unreachable!()
+    };
+    let trial = |partial| State::TrialProfile {
+        x: vec![],
+        config: cfg(),
+        partial,
+    };
+    assert_eq!(measure_ms(trial(None)), 2000, "early-stop part first");
+    assert_eq!(measure_ms(trial(Some(two))), 3000, "then the rest");
+    let base = with(State::Baseline {
+        graph: graph(),
+        prior: None,
+    });
+    let Effect::Measure(r) = effect(&base, &env) else {
+        panic!()
+    };
+    assert_eq!(r.probes.len(), 3, "two metrics and the /image rate");
+    assert_eq!(
+        effect(
+            &with(State::RemediateStop {
+                apps: vec!["det".into()]
+            }),
+            &env
+        ),
+        Effect::StopApps(vec!["det".into()])
+    );
+    let resumed = with(trial(None)).resumed();
+    assert_eq!(
+        resumed.state,
+        State::TrialApply {
+            x: vec![],
+            config: cfg()
+        }
+    );
+    let resumed = with(State::Verify {
+        candidate: Candidate::Baseline,
+        config: cfg(),
+    })
+    .resumed();
+    assert_eq!(name(&resumed.state), "VerifyApply");
+    let json = serde_json::to_string(&with(trial(None))).unwrap();
+    let back: Run = serde_json::from_str(&json).unwrap();
+    assert_eq!(back.state, trial(None));
+}
+
+#[test]
+fn baseline_is_the_config_last_applied() {
+    let (st, sp) = (stack(), spec(0.0, 5));
+    let env = env(&st, &sp);
+    let (run, _) = step(
+        with(State::UnsatApply { config: cfg() }),
+        Input::Applied,
+        &env,
+    );
+    assert_eq!(run.current, cfg());
+    let mut run = run;
+    run.state = State::Baseline {
+        graph: graph(),
+        prior: None,
+    };
+    let (run, _) = step(run, report(&BAD, 5.0), &env);
+    let b = run.baseline.unwrap();
+    assert_eq!(b.config.cpu["/detector"], 0.5);
+    assert_eq!(
+        b.config.cpu["/camera"], 2.0,
+        "unset knobs at their upper bound"
+    );
+}

@@ -1,0 +1,422 @@
+//! Measures (pure), with one definition used for the baseline, every trial,
+//! verification and the steady state (status, CLI, metrics):
+//!
+//! - **Constraint satisfaction rate**: the share of sub-windows (1 s) in which
+//!   every core constraint holds.
+//! - **Non-core performance**: each objective normalised and capped at its
+//!   target (`min(J, J°)/J°`, or `J°/max(J, J°)` for at-most targets), combined
+//!   by `spec.tuning.scalarization` (MaxMin: the worst; Weighted: weighted mean)
+//!   — the same definition as the optimizer's.
+//! - **Constraint value fed to the optimizer**: a per-sub-window lower (upper)
+//!   bound, `mean − 2.33·sd` (`mean + 2.33·sd`) of the sub-window values, so a
+//!   config that meets its target only on average (and would hold in half of
+//!   the sub-windows) does not count as feasible; 2.33 sd is the 99 % one-sided
+//!   normal quantile, matching the ≥ 99 % satisfaction goal.
+
+use std::collections::BTreeMap;
+
+use configbot_agent::measure::{MeasureReport, MeasureRequest, Probe};
+use configbot_manifests::performance_spec::{Bound, Scalarization};
+use configbot_manifests::{PerformanceSpecSpec, RobotStackSpec};
+use serde::{Deserialize, Serialize};
+
+/// One-sided 99 % normal quantile.
+const Z99: f64 = 2.33;
+
+/// A metric of the spec, resolved against the stack.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct MetricDef {
+    pub name: String,
+    pub app: String,
+    pub probe: Probe,
+    /// `true`: `(true, v)` at least v; `(false, v)` at most v.
+    pub at_least: bool,
+    pub target: f64,
+    /// Metric of a core app: a constraint; otherwise an objective.
+    pub core: bool,
+    pub weight: f64,
+}
+
+impl MetricDef {
+    /// Whether one value meets the target.
+    pub fn holds(&self, v: f64) -> bool {
+        if self.at_least {
+            v >= self.target
+        } else {
+            v <= self.target
+        }
+    }
+
+    /// `>= 35` / `<= 0.5`.
+    pub fn target_text(&self) -> String {
+        format!(
+            "{} {}",
+            if self.at_least { ">=" } else { "<=" },
+            self.target
+        )
+    }
+}
+
+/// The metrics of a spec (a metric of an app missing from the stack counts as core).
+pub fn metric_defs(stack: &RobotStackSpec, spec: &PerformanceSpecSpec) -> Vec<MetricDef> {
+    spec.metrics
+        .iter()
+        .filter_map(|m| {
+            let probe = match (&m.source.topic_rate, &m.source.cpu_usage) {
+                (Some(t), _) => Probe::TopicRate {
+                    topic: t.topic.clone(),
+                    subscriber: t.subscriber.clone(),
+                },
+                (None, Some(c)) => Probe::CpuUsage {
+                    node: c.node.clone(),
+                },
+                (None, None) => return None,
+            };
+            let (at_least, target) = match m.target.bound()? {
+                Bound::AtLeast(v) => (true, v),
+                Bound::AtMost(v) => (false, v),
+            };
+            Some(MetricDef {
+                name: m.name.clone(),
+                app: m.app.clone(),
+                probe,
+                at_least,
+                target,
+                core: stack.app(&m.app).is_none_or(|a| a.core),
+                weight: m.weight,
+            })
+        })
+        .collect()
+}
+
+/// A request for every metric plus the rate of `extra_topics` (for the knob space).
+pub fn request(
+    defs: &[MetricDef],
+    extra_topics: &[String],
+    duration_ms: u64,
+    sub_window_ms: u64,
+) -> MeasureRequest {
+    let mut probes: Vec<Probe> = defs.iter().map(|d| d.probe.clone()).collect();
+    for t in extra_topics {
+        let p = Probe::TopicRate {
+            topic: t.clone(),
+            subscriber: None,
+        };
+        if !probes.contains(&p) {
+            probes.push(p);
+        }
+    }
+    MeasureRequest {
+        probes,
+        duration_ms,
+        sub_window_ms,
+    }
+}
+
+/// The series of `probe` in a report.
+fn series<'a>(report: &'a MeasureReport, probe: &Probe) -> Option<&'a [f64]> {
+    report
+        .series
+        .iter()
+        .find(|s| s.probe == *probe)
+        .map(|s| s.values.as_slice())
+}
+
+/// Every topic's whole-window rate in a report.
+pub fn topic_rates(report: &MeasureReport) -> BTreeMap<String, f64> {
+    report
+        .series
+        .iter()
+        .filter_map(|s| match &s.probe {
+            Probe::TopicRate {
+                topic,
+                subscriber: None,
+            } => Some((topic.clone(), s.mean)),
+            _ => None,
+        })
+        .collect()
+}
+
+/// Per sub-window: did every core constraint hold? (A missing value is a violation.)
+pub fn windows_ok(defs: &[MetricDef], report: &MeasureReport) -> Vec<bool> {
+    let n = report
+        .series
+        .iter()
+        .map(|s| s.values.len())
+        .max()
+        .unwrap_or(0);
+    (0..n)
+        .map(|i| {
+            defs.iter().filter(|d| d.core).all(|d| {
+                series(report, &d.probe)
+                    .and_then(|v| v.get(i))
+                    .is_some_and(|&v| d.holds(v))
+            })
+        })
+        .collect()
+}
+
+/// Share of sub-windows in which every core constraint held (1 with no windows and no constraints).
+pub fn satisfaction(defs: &[MetricDef], report: &MeasureReport) -> f64 {
+    let w = windows_ok(defs, report);
+    if w.is_empty() {
+        return if defs.iter().any(|d| d.core) {
+            0.0
+        } else {
+            1.0
+        };
+    }
+    w.iter().filter(|b| **b).count() as f64 / w.len() as f64
+}
+
+fn mean_sd(v: &[f64]) -> (f64, f64) {
+    if v.is_empty() {
+        return (0.0, 0.0);
+    }
+    let n = v.len() as f64;
+    let mean = v.iter().sum::<f64>() / n;
+    let var = if v.len() > 1 {
+        v.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1.0)
+    } else {
+        0.0
+    };
+    (mean, var.sqrt())
+}
+
+/// The constraint value the optimizer sees (see the module docs).
+pub fn robust_value(def: &MetricDef, values: &[f64]) -> f64 {
+    let (mean, sd) = mean_sd(values);
+    if def.at_least {
+        mean - Z99 * sd
+    } else {
+        mean + Z99 * sd
+    }
+}
+
+/// Normalised, capped value of one objective.
+pub fn normalise(def: &MetricDef, j: f64) -> f64 {
+    if def.at_least {
+        j.min(def.target).max(0.0) / def.target
+    } else {
+        def.target / j.max(def.target)
+    }
+}
+
+/// Scalarised non-core performance; `None` without objectives.
+pub fn scalarize(
+    defs: &[MetricDef],
+    means: &BTreeMap<String, f64>,
+    s: Scalarization,
+) -> Option<f64> {
+    let u: Vec<(f64, f64)> = defs
+        .iter()
+        .filter(|d| !d.core)
+        .map(|d| {
+            (
+                normalise(d, means.get(&d.name).copied().unwrap_or(0.0)),
+                d.weight,
+            )
+        })
+        .collect();
+    if u.is_empty() {
+        return None;
+    }
+    Some(match s {
+        Scalarization::MaxMin => u.iter().map(|p| p.0).fold(f64::INFINITY, f64::min),
+        Scalarization::Weighted => {
+            let w: f64 = u.iter().map(|p| p.1).sum();
+            if w <= 0.0 {
+                0.0
+            } else {
+                u.iter().map(|(u, w)| u * w).sum::<f64>() / w
+            }
+        }
+    })
+}
+
+/// Everything the loop derives from one measurement.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Evaluation {
+    /// Whole-window mean of every metric.
+    pub means: BTreeMap<String, f64>,
+    /// Optimizer-facing constraint values, in metric order (core metrics only).
+    pub constraints: Vec<f64>,
+    /// Objective means, in metric order (non-core metrics only).
+    pub objectives: Vec<f64>,
+    pub satisfaction: f64,
+    pub objective: Option<f64>,
+    /// Every constraint's robust value meets its target.
+    pub feasible: bool,
+}
+
+pub fn evaluate(defs: &[MetricDef], report: &MeasureReport, s: Scalarization) -> Evaluation {
+    let mut means = BTreeMap::new();
+    let mut constraints = Vec::new();
+    let mut objectives = Vec::new();
+    let mut feasible = true;
+    for d in defs {
+        let values = series(report, &d.probe).unwrap_or(&[]);
+        let (mean, _) = mean_sd(values);
+        means.insert(d.name.clone(), mean);
+        if d.core {
+            let r = if values.is_empty() {
+                0.0
+            } else {
+                robust_value(d, values)
+            };
+            feasible &= !values.is_empty() && d.holds(r);
+            constraints.push(r);
+        } else {
+            objectives.push(mean);
+        }
+    }
+    Evaluation {
+        objective: scalarize(defs, &means, s),
+        satisfaction: satisfaction(defs, report),
+        means,
+        constraints,
+        objectives,
+        feasible,
+    }
+}
+
+/// Early stop of a trial: a core constraint that missed `floor × target` (or
+/// exceeded `target / floor` for at-most) in every sub-window so far. Returns its name.
+pub fn clearly_infeasible(
+    defs: &[MetricDef],
+    report: &MeasureReport,
+    floor: f64,
+) -> Option<String> {
+    defs.iter()
+        .filter(|d| d.core)
+        .find(|d| {
+            let v = series(report, &d.probe).unwrap_or(&[]);
+            !v.is_empty()
+                && v.iter().all(|&x| {
+                    if d.at_least {
+                        x < floor * d.target
+                    } else {
+                        x > d.target / floor
+                    }
+                })
+        })
+        .map(|d| d.name.clone())
+}
+
+/// Concatenate two consecutive reports of the same request.
+pub fn concat(a: &MeasureReport, b: &MeasureReport) -> MeasureReport {
+    let mut out = a.clone();
+    out.duration_ms += b.duration_ms;
+    let total = out.duration_ms.max(1) as f64;
+    for s in &mut out.series {
+        if let Some(t) = b.series.iter().find(|t| t.probe == s.probe) {
+            s.mean = (s.mean * a.duration_ms as f64 + t.mean * b.duration_ms as f64) / total;
+            s.values.extend_from_slice(&t.values);
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use configbot_agent::measure::ProbeSeries;
+
+    fn def(name: &str, core: bool, at_least: bool, target: f64) -> MetricDef {
+        MetricDef {
+            name: name.into(),
+            app: "a".into(),
+            probe: Probe::TopicRate {
+                topic: format!("/{name}"),
+                subscriber: None,
+            },
+            at_least,
+            target,
+            core,
+            weight: 1.0,
+        }
+    }
+
+    fn report(series: &[(&str, &[f64])]) -> MeasureReport {
+        MeasureReport {
+            started_unix_ms: 0,
+            duration_ms: 1000 * series[0].1.len() as u64,
+            sub_window_ms: 1000,
+            series: series
+                .iter()
+                .map(|(n, v)| ProbeSeries {
+                    probe: Probe::TopicRate {
+                        topic: format!("/{n}"),
+                        subscriber: None,
+                    },
+                    values: v.to_vec(),
+                    mean: v.iter().sum::<f64>() / v.len() as f64,
+                })
+                .collect(),
+        }
+    }
+
+    #[test]
+    fn satisfaction_table() {
+        let defs = vec![def("cmd", true, true, 35.0), def("lat", true, false, 0.1)];
+        let cases: Vec<(&[f64], &[f64], f64)> = vec![
+            (&[40.0, 40.0, 40.0, 40.0], &[0.05; 4], 1.0),
+            (&[40.0, 34.9, 40.0, 40.0], &[0.05; 4], 0.75),
+            (&[40.0, 34.9, 40.0, 40.0], &[0.2, 0.05, 0.05, 0.05], 0.5),
+            (&[10.0; 4], &[0.2; 4], 0.0),
+        ];
+        for (cmd, lat, want) in cases {
+            let r = report(&[("cmd", cmd), ("lat", lat)]);
+            assert_eq!(satisfaction(&defs, &r), want, "{cmd:?} {lat:?}");
+        }
+    }
+
+    #[test]
+    fn objectives_are_capped_and_scalarised() {
+        let mut defs = vec![
+            def("cmd", true, true, 35.0),
+            def("det", false, true, 10.0),
+            def("web", false, true, 20.0),
+        ];
+        defs[2].weight = 3.0;
+        let means: BTreeMap<String, f64> = [("det", 15.0), ("web", 10.0)]
+            .into_iter()
+            .map(|(k, v)| (k.to_string(), v))
+            .collect();
+        assert_eq!(scalarize(&defs, &means, Scalarization::MaxMin), Some(0.5));
+        // (1.0 * 1 + 0.5 * 3) / 4
+        assert_eq!(
+            scalarize(&defs, &means, Scalarization::Weighted),
+            Some(0.625)
+        );
+        assert_eq!(scalarize(&defs[..1], &means, Scalarization::MaxMin), None);
+        assert_eq!(normalise(&def("l", false, false, 0.1), 0.2), 0.5);
+    }
+
+    #[test]
+    fn feasibility_needs_margin_not_just_the_mean() {
+        let defs = vec![def("cmd", true, true, 35.0)];
+        let steady = report(&[("cmd", &[36.0, 36.0, 36.0, 36.0, 36.0])]);
+        let noisy = report(&[("cmd", &[33.0, 39.0, 34.0, 38.0, 36.0])]);
+        let e = evaluate(&defs, &steady, Scalarization::MaxMin);
+        assert!(e.feasible);
+        assert_eq!(e.constraints, vec![36.0]);
+        let e = evaluate(&defs, &noisy, Scalarization::MaxMin);
+        assert_eq!(e.means["cmd"], 36.0);
+        assert!(!e.feasible, "mean meets the target, sub-windows do not");
+        assert_eq!(e.satisfaction, 0.6);
+    }
+
+    #[test]
+    fn early_stop_and_concat() {
+        let defs = vec![def("cmd", true, true, 35.0), def("det", false, true, 5.0)];
+        let bad = report(&[("cmd", &[20.0, 25.0]), ("det", &[1.0, 1.0])]);
+        let near = report(&[("cmd", &[20.0, 30.0]), ("det", &[1.0, 1.0])]);
+        assert_eq!(clearly_infeasible(&defs, &bad, 0.8), Some("cmd".into()));
+        assert_eq!(clearly_infeasible(&defs, &near, 0.8), None);
+        let c = concat(&bad, &near);
+        assert_eq!(c.duration_ms, 4000);
+        assert_eq!(c.series[0].values, vec![20.0, 25.0, 20.0, 30.0]);
+        assert_eq!(c.series[0].mean, 23.75);
+    }
+}

@@ -1,0 +1,185 @@
+//! Pure helpers around a run's outcome: the optimizer problem built from the
+//! knobs and metrics, trials as optimizer observations and as library trials,
+//! and the Unsat explanation (which constraint, the best value reached, what
+//! to relax).
+
+use configbot_manifests::performance_spec::RemediationAction;
+use configbot_manifests::{ProfileContext, ProfileTrial, ResourceConfig};
+use configbot_optimizer::Observation;
+
+use super::knobs::KnobSpace;
+use super::machine::{Env, Output, Run, State, TrialRecord, warning};
+use super::measure::MetricDef;
+
+pub fn problem(
+    knobs: &KnobSpace,
+    defs: &[MetricDef],
+    env: &Env<'_>,
+) -> Result<configbot_optimizer::Problem, String> {
+    use configbot_optimizer::{Constraint, Goal, Objective, Problem, Scalarization};
+    let space = knobs.optimizer_space().map_err(|e| e.to_string())?;
+    let objectives = defs
+        .iter()
+        .filter(|d| !d.core)
+        .map(|d| Objective {
+            name: d.name.clone(),
+            goal: if d.at_least {
+                Goal::Maximize
+            } else {
+                Goal::Minimize
+            },
+            cap: Some(d.target),
+            weight: d.weight,
+        })
+        .collect();
+    let constraints = defs
+        .iter()
+        .filter(|d| d.core)
+        .map(|d| {
+            if d.at_least {
+                Constraint::at_least(&d.name, d.target)
+            } else {
+                Constraint::at_most(&d.name, d.target)
+            }
+        })
+        .collect();
+    let s = match env.spec.tuning.scalarization {
+        configbot_manifests::performance_spec::Scalarization::MaxMin => Scalarization::MaxMin,
+        configbot_manifests::performance_spec::Scalarization::Weighted => Scalarization::Weighted,
+    };
+    Problem::new(space, objectives, constraints, s).map_err(|e| e.to_string())
+}
+
+pub fn observation(rec: &TrialRecord) -> Observation {
+    Observation {
+        x: rec.x.clone(),
+        objectives: rec.eval.objectives.clone(),
+        constraints: rec.eval.constraints.clone(),
+        censored: rec.censored,
+    }
+}
+
+/// Trials of this run as library trials (optimizer-facing values by metric name).
+pub fn profile_trials(run: &Run, defs: &[MetricDef]) -> Vec<ProfileTrial> {
+    run.baseline
+        .iter()
+        .chain(&run.trials)
+        .map(|t| {
+            let (mut c, mut o) = (t.eval.constraints.iter(), t.eval.objectives.iter());
+            let values = defs
+                .iter()
+                .filter_map(|d| {
+                    let v = if d.core { c.next() } else { o.next() };
+                    v.map(|v| (d.name.clone(), *v))
+                })
+                .collect();
+            ProfileTrial {
+                config: t.config.clone(),
+                values,
+                censored: t.censored,
+            }
+        })
+        .collect()
+}
+
+/// The safest measured config and the message naming the constraint, the
+/// best value reached and what to relax.
+pub fn unsat_reason(run: &Run, defs: &[MetricDef]) -> (ResourceConfig, String) {
+    let all: Vec<(String, &TrialRecord)> = run
+        .baseline
+        .iter()
+        .map(|b| ("baseline".to_string(), b))
+        .chain(
+            run.trials
+                .iter()
+                .enumerate()
+                .map(|(i, t)| (format!("trial {i}"), t)),
+        )
+        .collect();
+    let safest = all
+        .iter()
+        .filter(|(_, t)| !t.censored)
+        .max_by(|a, b| {
+            a.1.eval
+                .satisfaction
+                .partial_cmp(&b.1.eval.satisfaction)
+                .unwrap_or(std::cmp::Ordering::Equal)
+        })
+        .or(all.first());
+    let config = safest.map(|(_, t)| t.config.clone()).unwrap_or_default();
+    let mut parts = Vec::new();
+    for (j, d) in defs.iter().filter(|d| d.core).enumerate() {
+        let best = all
+            .iter()
+            .filter(|(_, t)| !t.censored)
+            .filter_map(|(n, t)| {
+                t.eval
+                    .constraints
+                    .get(j)
+                    .map(|v| (n, *v, t.eval.means[&d.name]))
+            })
+            .max_by(|a, b| {
+                let (x, y) = if d.at_least { (a.1, b.1) } else { (b.1, a.1) };
+                x.partial_cmp(&y).unwrap_or(std::cmp::Ordering::Equal)
+            });
+        if let Some((n, robust, mean)) = best
+            && !d.holds(robust)
+        {
+            parts.push(format!(
+                "constraint {} ({}) was not met: best value reached {robust:.2} in 99 % of 1 s windows (mean {mean:.2}, {n}); relax the target to {} {robust:.2}",
+                d.name,
+                d.target_text(),
+                if d.at_least { "at most" } else { "at least" },
+            ));
+        }
+    }
+    if parts.is_empty() {
+        let names: Vec<&str> = defs
+            .iter()
+            .filter(|d| d.core)
+            .map(|d| d.name.as_str())
+            .collect();
+        parts.push(format!(
+            "constraints {} were each met by some config but never together",
+            names.join(", ")
+        ));
+    }
+    let msg = format!(
+        "UNSAT after {} trials: {}; or give the stack more CPU or fewer non-core apps. Applied the safest config measured ({}).",
+        run.trials.len(),
+        parts.join("; "),
+        safest.map_or("none", |(n, _)| n.as_str())
+    );
+    (config, msg)
+}
+
+pub fn list_or_none(apps: &[String]) -> String {
+    if apps.is_empty() {
+        "no apps".into()
+    } else {
+        apps.join(", ")
+    }
+}
+
+/// Enter remediation: stop the running non-core apps (per the spec's action).
+pub fn remediate(env: &Env<'_>, ctx: Option<&ProfileContext>, out: &mut Vec<Output>) -> State {
+    let apps: Vec<String> = match env.spec.remediation.action {
+        RemediationAction::None => Vec::new(),
+        RemediationAction::StopNonCore | RemediationAction::FreezeNonCore => env
+            .stack
+            .spec
+            .apps
+            .iter()
+            .filter(|a| !a.core && ctx.is_none_or(|c| c.apps.contains(&a.name)))
+            .map(|a| a.name.clone())
+            .collect(),
+    };
+    out.push(warning(
+        "Remediated",
+        format!(
+            "a core constraint is violated, no known config holds and tuning is not allowed now: stopping {} and lifting CPU limits of core nodes; relearning is queued until tuning is allowed",
+            list_or_none(&apps)
+        ),
+    ));
+    State::RemediateStop { apps }
+}

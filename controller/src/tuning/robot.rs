@@ -1,0 +1,121 @@
+//! The tuning loop's only view of a robot: the operations of the node runtime
+//! (CONTRACTS.md "Node runtime") — apply a config, measure a window, read the
+//! ROS graph, stop/start an app, and a stream of runtime events — plus the
+//! clock the loop waits on, injected so tests run on simulated time.
+//!
+//! The trait is dyn-compatible (boxed futures), so the server holds an
+//! `Arc<dyn Robot>`; the lead implements it for `NodeRuntime` (embedded) and
+//! `AgentClient` (remote), the tests for the simulated robot in [`super::sim`].
+
+use std::future::Future;
+use std::pin::Pin;
+use std::time::Duration;
+
+use configbot_agent::measure::{MeasureReport, MeasureRequest};
+use configbot_dataplane::{Graph, GraphEvent};
+use configbot_manifests::ResourceConfig;
+use tokio::sync::broadcast;
+
+/// A boxed, sendable future (keeps [`Robot`] dyn-compatible).
+pub type BoxFuture<'a, T> = Pin<Box<dyn Future<Output = T> + Send + 'a>>;
+
+/// A robot operation failed.
+#[derive(Debug, thiserror::Error)]
+#[error("robot {op}: {message}")]
+pub struct RobotError {
+    /// The operation: `apply`, `measure`, `graph`, `stop_app`, `start_app`.
+    pub op: &'static str,
+    pub message: String,
+    #[source]
+    pub source: Option<Box<dyn std::error::Error + Send + Sync>>,
+}
+
+impl RobotError {
+    pub fn new(op: &'static str, message: impl Into<String>) -> RobotError {
+        RobotError {
+            op,
+            message: message.into(),
+            source: None,
+        }
+    }
+
+    /// Wrap any error of the implementation.
+    pub fn wrap(op: &'static str, e: impl std::error::Error + Send + Sync + 'static) -> RobotError {
+        RobotError {
+            op,
+            message: e.to_string(),
+            source: Some(Box::new(e)),
+        }
+    }
+}
+
+/// What the tuning loop needs to know of the runtime's `RuntimeEvent`s. The
+/// implementation maps each `RuntimeEvent` onto one of these (others → `Other`).
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(tag = "type", rename_all = "camelCase")]
+pub enum RobotEvent {
+    /// A process exec seen by the process monitor.
+    #[serde(rename_all = "camelCase")]
+    ProcessExec {
+        pid: u32,
+        comm: Option<String>,
+        at_unix_ms: u64,
+    },
+    #[serde(rename_all = "camelCase")]
+    ProcessExit { pid: u32 },
+    /// The ROS graph changed (nodes or edges came or went).
+    #[serde(rename_all = "camelCase")]
+    GraphChanged { events: Vec<GraphEvent> },
+    #[serde(rename_all = "camelCase")]
+    AppStopped { app: String },
+    #[serde(rename_all = "camelCase")]
+    AppStarted { app: String },
+    /// Any other runtime event, by its type name.
+    #[serde(rename_all = "camelCase")]
+    Other { name: String },
+}
+
+/// A robot as the tuning loop drives it. Every method may be called
+/// concurrently from one runner task only; implementations must be cheap to share.
+pub trait Robot: Send + Sync {
+    /// Apply CPU limits (atomically) then adaptor rates; nodes and edges not
+    /// listed become unlimited.
+    fn apply<'a>(&'a self, cfg: &'a ResourceConfig) -> BoxFuture<'a, Result<(), RobotError>>;
+    /// Measure `req.probes` over `req.duration_ms` (blocks for the window).
+    fn measure<'a>(
+        &'a self,
+        req: &'a MeasureRequest,
+    ) -> BoxFuture<'a, Result<MeasureReport, RobotError>>;
+    /// The current ROS graph.
+    fn graph(&self) -> BoxFuture<'_, Result<Graph, RobotError>>;
+    /// Stop every node of `app` (remediation).
+    fn stop_app<'a>(&'a self, app: &'a str) -> BoxFuture<'a, Result<(), RobotError>>;
+    /// Start every node of `app` again.
+    fn start_app<'a>(&'a self, app: &'a str) -> BoxFuture<'a, Result<(), RobotError>>;
+    /// Runtime events from now on.
+    fn events(&self) -> broadcast::Receiver<RobotEvent>;
+}
+
+/// The time the tuning loop waits on (settling, monitor periods). Real robots
+/// use [`SystemClock`]; the simulated robot advances its own time instead.
+pub trait Clock: Send + Sync {
+    /// Milliseconds since the Unix epoch.
+    fn now_ms(&self) -> u64;
+    fn sleep(&self, d: Duration) -> BoxFuture<'_, ()>;
+}
+
+/// Wall-clock time and tokio timers.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct SystemClock;
+
+impl Clock for SystemClock {
+    fn now_ms(&self) -> u64 {
+        std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |d| d.as_millis() as u64)
+    }
+
+    fn sleep(&self, d: Duration) -> BoxFuture<'_, ()> {
+        Box::pin(tokio::time::sleep(d))
+    }
+}

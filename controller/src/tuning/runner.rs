@@ -1,0 +1,587 @@
+//! The driver: one async task per PerformanceSpec that runs the tuning
+//! machine against a [`Robot`]. Each iteration reads the spec and stack from
+//! the store, persists the run (the resume point) and writes status, does the
+//! IO the state asks for ([`machine::effect`]), and feeds the result to
+//! [`machine::step`]; events and library entries go to the store. While
+//! monitoring it also watches robot events (process execs, graph changes) and
+//! the periodic graph check, and turns a changed context into a trigger.
+//!
+//! [`TuningManager`] starts and stops runners; the PerformanceSpec reconciler
+//! calls it when the server has a robot attached.
+
+use std::collections::HashMap;
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+use configbot_manifests::{Kind, PerformanceSpec, PerformanceSpecStatus, RobotStack};
+use serde::{Deserialize, Serialize};
+use tokio::sync::broadcast;
+use tokio::task::JoinHandle;
+
+use super::library::{self, CONTEXT_LABELS};
+use super::machine::{self, Effect, Env, Input, Output, Run, State};
+use super::monitor::{self, Trigger};
+use super::robot::{Clock, Robot, RobotError, RobotEvent};
+use crate::metrics::{Metrics, PHASES};
+use crate::store::{Store, StoreError};
+
+/// Scope of the runs in the store's controller state.
+pub const STATE_SCOPE: &str = "tuning-run";
+/// Annotation a task executive sets to pause tuning (`"false"`).
+pub const TUNING_ALLOWED: &str = "configbot.dev/tuning-allowed";
+
+/// Errors of one runner iteration (logged as events, then retried).
+#[derive(Debug, thiserror::Error)]
+pub enum RunnerError {
+    #[error("store: {0}")]
+    Store(#[from] StoreError),
+    #[error(transparent)]
+    Robot(#[from] RobotError),
+    #[error("persisted tuning run {key}: {source}")]
+    State {
+        key: String,
+        #[source]
+        source: serde_json::Error,
+    },
+}
+
+/// What a runner needs: the robot, its clock, the store and the metrics.
+#[derive(Clone)]
+pub struct RunnerCtx {
+    pub robot: Arc<dyn Robot>,
+    pub clock: Arc<dyn Clock>,
+    pub store: Arc<Store>,
+    pub metrics: Arc<Metrics>,
+}
+
+impl std::fmt::Debug for RunnerCtx {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("RunnerCtx").finish_non_exhaustive()
+    }
+}
+
+#[derive(Serialize, Deserialize)]
+struct Persisted {
+    uid: String,
+    run: Run,
+}
+
+fn run_key(ns: &str, name: &str) -> String {
+    format!("{ns}/{name}")
+}
+
+/// The persisted run of a spec, if any (for tools and tests).
+pub fn load_run(store: &Store, ns: &str, name: &str) -> Result<Option<Run>, RunnerError> {
+    let key = run_key(ns, name);
+    store
+        .get_state(STATE_SCOPE, &key)?
+        .map(|b| serde_json::from_str::<Persisted>(&b).map(|p| p.run))
+        .transpose()
+        .map_err(|source| RunnerError::State { key, source })
+}
+
+/// Whether tuning may run now: the spec field and the task executive's annotation.
+pub fn tuning_allowed(spec: &PerformanceSpec) -> bool {
+    spec.spec.tuning.allowed
+        && spec
+            .metadata
+            .annotations
+            .get(TUNING_ALLOWED)
+            .is_none_or(|v| v.trim() != "false")
+}
+
+fn labels(
+    spec: &PerformanceSpec,
+    stack: &RobotStack,
+) -> std::collections::BTreeMap<String, String> {
+    spec.metadata
+        .annotations
+        .get(CONTEXT_LABELS)
+        .or(stack.metadata.annotations.get(CONTEXT_LABELS))
+        .map(|s| library::parse_labels(s))
+        .unwrap_or_default()
+}
+
+struct Runner {
+    ctx: RunnerCtx,
+    ns: String,
+    name: String,
+    events: broadcast::Receiver<RobotEvent>,
+    next_graph_check_ms: u64,
+    graph_interval_ms: u64,
+    /// Time of the last process exec seen (to report detection latency).
+    last_exec_ms: Option<u64>,
+    failures: u32,
+}
+
+/// Run the tuning loop of one spec until the spec is deleted.
+pub async fn run_spec(ctx: RunnerCtx, ns: String, name: String) {
+    let events = ctx.robot.events();
+    let mut r = Runner {
+        ctx,
+        ns,
+        name,
+        events,
+        next_graph_check_ms: 0,
+        graph_interval_ms: 30_000,
+        last_exec_ms: None,
+        failures: 0,
+    };
+    let mut run: Option<Run> = None;
+    loop {
+        match r.iterate(run.take()).await {
+            Ok(Some(next)) => {
+                r.failures = 0;
+                run = Some(next);
+            }
+            Ok(None) => return,
+            Err((e, keep)) => {
+                r.failures += 1;
+                if r.failures == 1 {
+                    r.event(false, "TuningError", &e.to_string());
+                }
+                run = keep;
+                let backoff = Duration::from_millis(500u64.saturating_mul(1 << r.failures.min(6)));
+                r.ctx
+                    .clock
+                    .sleep(backoff.min(Duration::from_secs(30)))
+                    .await;
+            }
+        }
+    }
+}
+
+type IterResult = Result<Option<Run>, (RunnerError, Option<Run>)>;
+
+impl Runner {
+    fn event(&self, normal: bool, reason: &str, message: &str) {
+        if let Ok(Some(obj)) = self
+            .ctx
+            .store
+            .get(Kind::PerformanceSpec, &self.ns, &self.name)
+        {
+            let _ = self.ctx.store.record_event(
+                &obj,
+                if normal { "Normal" } else { "Warning" },
+                reason,
+                message,
+            );
+        }
+    }
+
+    /// One effect and one step. `Ok(None)`: the spec is gone.
+    async fn iterate(&mut self, run: Option<Run>) -> IterResult {
+        let store = self.ctx.store.clone();
+        let key = run_key(&self.ns, &self.name);
+        let keep = run.clone();
+        let fail = |e: RunnerError, keep: Option<Run>| (e, keep);
+        let obj = match store.get(Kind::PerformanceSpec, &self.ns, &self.name) {
+            Ok(Some(o)) => o,
+            Ok(None) => {
+                let _ = store.delete_state(STATE_SCOPE, &key);
+                return Ok(None);
+            }
+            Err(e) => return Err(fail(e.into(), keep)),
+        };
+        let Ok(spec) = serde_json::from_value::<PerformanceSpec>(obj.clone()) else {
+            // Invalid specs are reported by the reconciler; wait for a fix.
+            self.ctx.clock.sleep(Duration::from_secs(1)).await;
+            return Ok(keep);
+        };
+        let stack = store
+            .get(Kind::RobotStack, &self.ns, &spec.spec.stack_ref.name)
+            .map_err(|e| fail(e.into(), keep.clone()))?
+            .and_then(|s| serde_json::from_value::<RobotStack>(s).ok());
+        let Some(stack) = stack else {
+            self.ctx.clock.sleep(Duration::from_secs(1)).await;
+            return Ok(keep);
+        };
+        let generation = spec.metadata.generation.unwrap_or(0);
+        let uid = spec.metadata.uid.clone().unwrap_or_default();
+        let mut run = match run {
+            Some(r) if r.generation == generation => r,
+            Some(old) => {
+                let t = Trigger::SpecChanged;
+                self.trigger_metric(&t);
+                self.event(true, t.reason(), &t.message());
+                let mut r = Run::new(generation, t);
+                r.current = old.current;
+                r
+            }
+            None => match store.get_state(STATE_SCOPE, &key) {
+                Ok(Some(body)) => match serde_json::from_str::<Persisted>(&body) {
+                    Ok(p) if p.uid == uid && p.run.generation == generation => {
+                        let resumed = p.run.resumed();
+                        self.event(
+                            true,
+                            "Resumed",
+                            &format!(
+                                "resumed the tuning run in phase {} after {} trials",
+                                resumed.phase(),
+                                resumed.trials.len()
+                            ),
+                        );
+                        resumed
+                    }
+                    _ => Run::new(generation, Trigger::SpecChanged),
+                },
+                Ok(None) => Run::new(generation, Trigger::SpecChanged),
+                Err(e) => return Err(fail(e.into(), None)),
+            },
+        };
+        let cpus = stack.spec.robot.cpus.unwrap_or_else(machine_cpus);
+        let (ns, name) = (self.ns.clone(), self.name.clone());
+        let env = Env {
+            stack: &stack,
+            spec: &spec.spec,
+            namespace: &ns,
+            spec_name: &name,
+            cpus,
+            tuning_allowed: tuning_allowed(&spec),
+        };
+        // Persist the resume point and publish status before doing the IO.
+        let body = serde_json::to_string(&Persisted {
+            uid: uid.clone(),
+            run: run.clone(),
+        })
+        .map_err(|source| {
+            fail(
+                RunnerError::State {
+                    key: key.clone(),
+                    source,
+                },
+                Some(run.clone()),
+            )
+        })?;
+        store
+            .put_state(STATE_SCOPE, &key, &body)
+            .map_err(|e| fail(e.into(), Some(run.clone())))?;
+        self.write_status(&run, &env, generation)
+            .map_err(|e| fail(e, Some(run.clone())))?;
+        self.graph_interval_ms = (spec.spec.monitoring.graph_interval_seconds * 1000.0) as u64;
+        let effect = machine::effect(&run, &env);
+        let labels = labels(&spec, &stack);
+        let input = match self.execute(effect, &run, &env, &stack, &labels).await {
+            Ok(i) => i,
+            Err(e) => return Err(fail(e, Some(run))),
+        };
+        if matches!(input, Input::Observed { .. }) {
+            self.next_graph_check_ms = self.ctx.clock.now_ms() + self.graph_interval_ms;
+        }
+        let (next, outputs) = machine::step(run, input, &env);
+        run = next;
+        for o in outputs {
+            self.output(o);
+        }
+        Ok(Some(run))
+    }
+
+    fn output(&self, o: Output) {
+        match o {
+            Output::Event {
+                warning,
+                reason,
+                message,
+            } => {
+                let m = &self.ctx.metrics.tuning;
+                let l = [self.ns.as_str(), self.name.as_str()];
+                match reason {
+                    "LibraryHit" => m.library_hits.with_label_values(&l).inc(),
+                    "Remediated" => m
+                        .remediations
+                        .with_label_values(&[l[0], l[1], "stop_non_core"])
+                        .inc(),
+                    "RemediationUndone" => m
+                        .remediations
+                        .with_label_values(&[l[0], l[1], "undo"])
+                        .inc(),
+                    "ConstraintViolated"
+                    | "ContextChanged"
+                    | "LibraryConfigFailed"
+                    | "TuningAllowed" => m.triggers.with_label_values(&[l[0], l[1], reason]).inc(),
+                    _ => {}
+                }
+                self.event(!warning, reason, &message);
+            }
+            Output::SaveProfile(p) => match library::save(&self.ctx.store, &p) {
+                Ok(()) => self.event(
+                    true,
+                    "ProfileSaved",
+                    &format!(
+                        "config library: saved ConfigProfile {} for context {}",
+                        p.metadata.name,
+                        p.spec.context.key()
+                    ),
+                ),
+                Err(e) => self.event(false, "ProfileSaveFailed", &e.to_string()),
+            },
+        }
+    }
+
+    fn trigger_metric(&self, t: &Trigger) {
+        self.ctx
+            .metrics
+            .tuning
+            .triggers
+            .with_label_values(&[self.ns.as_str(), self.name.as_str(), t.reason()])
+            .inc();
+    }
+
+    /// Do the IO of one effect.
+    async fn execute(
+        &mut self,
+        effect: Effect,
+        run: &Run,
+        env: &Env<'_>,
+        stack: &RobotStack,
+        labels: &std::collections::BTreeMap<String, String>,
+    ) -> Result<Input, RunnerError> {
+        let robot = self.ctx.robot.clone();
+        Ok(match effect {
+            Effect::Observe => {
+                let graph = robot.graph().await?;
+                let context = library::context(stack, &graph, labels);
+                let known =
+                    library::lookup(&self.ctx.store, &self.ns, &self.name, &context)?.map(Box::new);
+                Input::Observed {
+                    graph,
+                    context,
+                    known,
+                }
+            }
+            Effect::Apply(cfg) => {
+                robot.apply(&cfg).await?;
+                Input::Applied
+            }
+            Effect::Sleep(d) => {
+                self.ctx.clock.sleep(d).await;
+                Input::Slept
+            }
+            Effect::Measure(req) => {
+                if !matches!(run.state, State::Monitor { .. }) {
+                    return Ok(Input::Measured(robot.measure(&req).await?));
+                }
+                // Monitoring: the periodic graph check, then measure while watching events.
+                if self.ctx.clock.now_ms() >= self.next_graph_check_ms
+                    && let Some(t) = self
+                        .context_trigger(run, stack, labels, "periodic graph check")
+                        .await?
+                {
+                    return Ok(Input::Trigger(t));
+                }
+                loop {
+                    tokio::select! {
+                        biased;
+                        ev = self.events.recv() => match ev {
+                            Ok(e) => {
+                                if let RobotEvent::ProcessExec { at_unix_ms, .. } = &e {
+                                    self.last_exec_ms = Some(*at_unix_ms);
+                                }
+                                if let Some(cause) = monitor::recheck_cause(&e) {
+                                    if let Some(t) = self.context_trigger(run, stack, labels, &cause).await? {
+                                        return Ok(Input::Trigger(t));
+                                    }
+                                    // Not visible in the graph yet: look again soon.
+                                    self.next_graph_check_ms = self.ctx.clock.now_ms() + 1000;
+                                }
+                            }
+                            Err(broadcast::error::RecvError::Lagged(_)) => {
+                                self.next_graph_check_ms = 0;
+                            }
+                            Err(broadcast::error::RecvError::Closed) => {
+                                return Ok(Input::Measured(robot.measure(&req).await?));
+                            }
+                        },
+                        m = robot.measure(&req) => return Ok(Input::Measured(m?)),
+                    }
+                }
+            }
+            Effect::StopApps(apps) => {
+                for a in &apps {
+                    robot.stop_app(a).await?;
+                }
+                let _ = env;
+                Input::AppsStopped
+            }
+            Effect::StartApps(apps) => {
+                for a in &apps {
+                    robot.start_app(a).await?;
+                }
+                Input::AppsStarted
+            }
+        })
+    }
+
+    /// Read the graph; a trigger when the context differs from the run's.
+    async fn context_trigger(
+        &mut self,
+        run: &Run,
+        stack: &RobotStack,
+        labels: &std::collections::BTreeMap<String, String>,
+        by: &str,
+    ) -> Result<Option<Trigger>, RunnerError> {
+        let graph = self.ctx.robot.graph().await?;
+        let ctx = library::context(stack, &graph, labels);
+        self.next_graph_check_ms = u64::MAX; // set again after the next Observe
+        let from = run.context.as_ref().map(|c| c.key()).unwrap_or_default();
+        if from == ctx.key() {
+            self.next_graph_check_ms = self.ctx.clock.now_ms() + self.graph_interval_ms;
+            return Ok(None);
+        }
+        let by = match self.last_exec_ms.take() {
+            Some(t) => format!(
+                "{by}; {} ms after the last process exec",
+                self.ctx.clock.now_ms().saturating_sub(t)
+            ),
+            None => by.to_string(),
+        };
+        Ok(Some(Trigger::ContextChanged {
+            from,
+            to: ctx.key(),
+            by,
+        }))
+    }
+
+    fn write_status(&self, run: &Run, env: &Env<'_>, generation: i64) -> Result<(), RunnerError> {
+        let defs = env.defs();
+        self.metrics(run, &defs);
+        for _ in 0..5 {
+            let Some(obj) = self
+                .ctx
+                .store
+                .get(Kind::PerformanceSpec, &self.ns, &self.name)?
+            else {
+                return Ok(());
+            };
+            let old: PerformanceSpecStatus = obj
+                .get("status")
+                .and_then(|s| serde_json::from_value(s.clone()).ok())
+                .unwrap_or_default();
+            let new = super::status::status(
+                &old,
+                run,
+                &defs,
+                env.spec.tuning.max_trials,
+                generation,
+                &crate::store::now_rfc3339(),
+            );
+            if new == old {
+                return Ok(());
+            }
+            let value = serde_json::to_value(&new).map_err(|source| RunnerError::State {
+                key: run_key(&self.ns, &self.name),
+                source,
+            })?;
+            let rv = obj["metadata"]["resourceVersion"].as_str();
+            match self
+                .ctx
+                .store
+                .put_status(Kind::PerformanceSpec, &self.ns, &self.name, value, rv)
+            {
+                Err(StoreError::Conflict { .. }) => continue,
+                r => return r.map(|_| ()).map_err(Into::into),
+            }
+        }
+        Ok(())
+    }
+
+    fn metrics(&self, run: &Run, defs: &[super::measure::MetricDef]) {
+        let m = &self.ctx.metrics.tuning;
+        let (ns, name) = (self.ns.as_str(), self.name.as_str());
+        for p in PHASES {
+            m.phase
+                .with_label_values(&[ns, name, p])
+                .set(i64::from(run.phase() == p));
+        }
+        m.trials
+            .with_label_values(&[ns, name])
+            .set(run.trials.len() as i64);
+        let latest = run.trials.last().or(run.baseline.as_ref());
+        let sat = match run.state {
+            State::Monitor { .. } => run.monitor.satisfaction(),
+            _ => None,
+        }
+        .or(latest.map(|t| t.eval.satisfaction));
+        if let Some(s) = sat {
+            m.satisfaction.with_label_values(&[ns, name]).set(s);
+        }
+        for d in defs {
+            m.metric_target
+                .with_label_values(&[ns, name, d.name.as_str()])
+                .set(d.target);
+            if let Some(v) = latest.and_then(|t| t.eval.means.get(&d.name)) {
+                m.metric_value
+                    .with_label_values(&[ns, name, d.name.as_str()])
+                    .set(*v);
+            }
+        }
+    }
+}
+
+fn machine_cpus() -> f64 {
+    std::thread::available_parallelism().map_or(1.0, |n| n.get() as f64)
+}
+
+/// Starts and stops one runner per PerformanceSpec.
+#[derive(Debug)]
+pub struct TuningManager {
+    ctx: RunnerCtx,
+    runners: Mutex<HashMap<(String, String), JoinHandle<()>>>,
+}
+
+impl TuningManager {
+    pub fn new(ctx: RunnerCtx) -> TuningManager {
+        TuningManager {
+            ctx,
+            runners: Mutex::new(HashMap::new()),
+        }
+    }
+
+    /// Make sure a runner for the spec is running (inside a tokio runtime).
+    pub fn ensure(&self, ns: &str, name: &str) {
+        let mut r = self.runners.lock().unwrap_or_else(|p| p.into_inner());
+        let key = (ns.to_string(), name.to_string());
+        if r.get(&key).is_some_and(|h| !h.is_finished()) {
+            return;
+        }
+        let h = tokio::spawn(run_spec(self.ctx.clone(), key.0.clone(), key.1.clone()));
+        r.insert(key, h);
+    }
+
+    /// Stop the spec's runner (its persisted run stays for a resume).
+    pub fn stop(&self, ns: &str, name: &str) {
+        let mut r = self.runners.lock().unwrap_or_else(|p| p.into_inner());
+        if let Some(h) = r.remove(&(ns.to_string(), name.to_string())) {
+            h.abort();
+        }
+    }
+
+    /// The spec was deleted: stop its runner and drop its persisted run.
+    pub fn forget(&self, ns: &str, name: &str) {
+        self.stop(ns, name);
+        if let Err(e) = self.ctx.store.delete_state(STATE_SCOPE, &run_key(ns, name)) {
+            eprintln!("configbot: tuning run {ns}/{name}: {e}");
+        }
+    }
+
+    /// Specs with a live runner.
+    pub fn running(&self) -> Vec<(String, String)> {
+        let r = self.runners.lock().unwrap_or_else(|p| p.into_inner());
+        let mut v: Vec<_> = r
+            .iter()
+            .filter(|(_, h)| !h.is_finished())
+            .map(|(k, _)| k.clone())
+            .collect();
+        v.sort();
+        v
+    }
+}
+
+impl Drop for TuningManager {
+    fn drop(&mut self) {
+        let r = self.runners.get_mut().unwrap_or_else(|p| p.into_inner());
+        for (_, h) in r.drain() {
+            h.abort();
+        }
+    }
+}

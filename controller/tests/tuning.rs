@@ -1,0 +1,623 @@
+//! The tuning runner end to end against the simulated robot (simulated time,
+//! so each scenario takes seconds): a violating default reaches Satisfied with
+//! ≥ 99 % steady-state satisfaction; an impossible spec ends Unsat naming the
+//! constraint and the best value; a run killed mid-trial resumes without
+//! repeating finished trials; a familiar context re-applies its library config
+//! without trials; remediation stops the non-core app and restores the core
+//! constraint, and its undo restarts it.
+
+use std::sync::Arc;
+use std::time::Duration;
+
+use configbot_controller::metrics::Metrics;
+use configbot_controller::store::Store;
+use configbot_controller::tuning::machine::State;
+use configbot_controller::tuning::robot::Robot;
+use configbot_controller::tuning::runner::{self, RunnerCtx};
+use configbot_controller::tuning::sim::{SimInput, SimNode, SimRobot};
+use configbot_manifests::Kind;
+use serde_json::{Value, json};
+
+fn node(
+    name: &str,
+    app: &str,
+    threads: f64,
+    timer: Option<f64>,
+    cycle: f64,
+    inputs: &[(&str, f64)],
+    publishes: &str,
+) -> SimNode {
+    SimNode {
+        name: name.into(),
+        app: app.into(),
+        threads,
+        timer_hz: timer,
+        cycle_cost: cycle,
+        inputs: inputs
+            .iter()
+            .map(|(t, c)| SimInput {
+                topic: t.to_string(),
+                cost: *c,
+            })
+            .collect(),
+        publishes: Some(publishes.into()),
+    }
+}
+
+/// 2 CPUs. Core `nav`: a 40 Hz lidar and a 40 Hz planner that needs 0.8 CPU.
+/// Non-core `det`: a 30 Hz camera and a 3-thread detector wanting 3 CPUs.
+/// Unlimited, the detector starves the planner (cmd_vel ≈ 19 Hz).
+fn sim(seed: u64) -> Arc<SimRobot> {
+    SimRobot::new(
+        2.0,
+        vec![
+            node("/lidar", "nav", 1.0, Some(40.0), 0.005, &[], "/scan"),
+            node(
+                "/planner",
+                "nav",
+                1.0,
+                Some(40.0),
+                0.01,
+                &[("/scan", 0.01)],
+                "/cmd_vel",
+            ),
+            node("/camera", "det", 1.0, Some(30.0), 0.01, &[], "/image"),
+            node(
+                "/detector",
+                "det",
+                3.0,
+                None,
+                0.0,
+                &[("/image", 0.1)],
+                "/detections",
+            ),
+        ],
+        0.01,
+        seed,
+    )
+}
+
+fn stack() -> Value {
+    let n = |name: &str| json!({"name": name, "run": {"command": "sim"}});
+    json!({"apiVersion": "configbot.dev/v1alpha1", "kind": "RobotStack",
+        "metadata": {"name": "robot"},
+        "spec": {"robot": {"model": "simbot", "cpus": 2}, "apps": [
+            {"name": "nav", "core": true, "nodes": [n("/lidar"), n("/planner")]},
+            {"name": "det", "nodes": [n("/camera"), n("/detector")]}]}})
+}
+
+fn spec(cmd_vel_target: f64, max_trials: u32, extra: Value) -> Value {
+    let mut s = json!({"apiVersion": "configbot.dev/v1alpha1", "kind": "PerformanceSpec",
+        "metadata": {"name": "nav-spec"},
+        "spec": {"stackRef": {"name": "robot"},
+            "metrics": [
+                {"name": "cmd-vel", "app": "nav", "source": {"topicRate": {"topic": "/cmd_vel"}},
+                 "target": {"atLeast": cmd_vel_target}},
+                {"name": "detections", "app": "det", "source": {"topicRate": {"topic": "/detections"}},
+                 "target": {"atLeast": 10}}],
+            "tuning": {"maxTrials": max_trials, "seed": 3}}});
+    if let Value::Object(m) = extra {
+        for (k, v) in m {
+            s["spec"]["tuning"][k] = v;
+        }
+    }
+    s
+}
+
+struct Fixture {
+    dir: tempfile::TempDir,
+    store: Arc<Store>,
+    sim: Arc<SimRobot>,
+    metrics: Arc<Metrics>,
+}
+
+impl Fixture {
+    fn new(spec: Value) -> Fixture {
+        let dir = tempfile::tempdir().unwrap();
+        let store = Arc::new(Store::open(&dir.path().join("db.sqlite")).unwrap());
+        store.put(Kind::RobotStack, stack(), true).unwrap();
+        store.put(Kind::PerformanceSpec, spec, true).unwrap();
+        Fixture {
+            dir,
+            store,
+            sim: sim(7),
+            metrics: Arc::new(Metrics::new()),
+        }
+    }
+
+    fn ctx(&self) -> RunnerCtx {
+        RunnerCtx {
+            robot: self.sim.clone(),
+            clock: self.sim.clone(),
+            store: self.store.clone(),
+            metrics: self.metrics.clone(),
+        }
+    }
+
+    fn spawn(&self) -> tokio::task::JoinHandle<()> {
+        tokio::spawn(runner::run_spec(
+            self.ctx(),
+            "default".into(),
+            "nav-spec".into(),
+        ))
+    }
+
+    fn status(&self) -> Value {
+        self.store
+            .get(Kind::PerformanceSpec, "default", "nav-spec")
+            .unwrap()
+            .unwrap()["status"]
+            .clone()
+    }
+
+    fn run(&self) -> configbot_controller::tuning::machine::Run {
+        runner::load_run(&self.store, "default", "nav-spec")
+            .unwrap()
+            .unwrap()
+    }
+
+    fn events(&self) -> Vec<(String, String)> {
+        self.store
+            .events(None, Some("PerformanceSpec"), Some("nav-spec"))
+            .unwrap()
+            .into_iter()
+            .map(|e| (e.reason, e.message))
+            .collect()
+    }
+
+    /// Wait (real time, with a timeout) until `f` holds on the persisted run.
+    async fn until(
+        &self,
+        what: &str,
+        f: impl Fn(&configbot_controller::tuning::machine::Run) -> bool,
+    ) {
+        let deadline = tokio::time::Instant::now() + Duration::from_secs(240);
+        loop {
+            if let Ok(Some(r)) = runner::load_run(&self.store, "default", "nav-spec")
+                && f(&r)
+            {
+                return;
+            }
+            assert!(
+                tokio::time::Instant::now() < deadline,
+                "timed out waiting for {what}; events: {:#?}",
+                self.events()
+            );
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+    }
+}
+
+fn monitoring(r: &configbot_controller::tuning::machine::Run, windows: u64) -> bool {
+    matches!(
+        r.state,
+        State::Monitor {
+            satisfied: true,
+            ..
+        }
+    ) && r.monitor.windows >= windows
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn violating_default_reaches_satisfied_with_99_percent_in_steady_state() {
+    let f = Fixture::new(spec(35.0, 15, json!({})));
+    let h = f.spawn();
+    f.until("steady-state monitoring", |r| monitoring(r, 60))
+        .await;
+    h.abort();
+    let run = f.run();
+    let base = run.baseline.as_ref().unwrap();
+    assert!(
+        base.eval.satisfaction < 0.5,
+        "the default config violates: {:?}",
+        base.eval
+    );
+    let steady = run.monitor.satisfaction().unwrap();
+    let best_i = f.status()["bestTrial"].as_u64().unwrap() as usize;
+    eprintln!(
+        "baseline satisfaction {:.3} (cmd-vel {:.1} Hz); {} trials; best trial {best_i}: {:?} objective {:?}; steady-state satisfaction {steady:.3} over {} windows",
+        base.eval.satisfaction,
+        base.eval.means["cmd-vel"],
+        run.trials.len(),
+        run.trials[best_i].config,
+        run.trials[best_i].eval.objective,
+        run.monitor.windows
+    );
+    assert!(steady >= 0.99, "steady-state satisfaction {steady}");
+    let st = f.status();
+    assert_eq!(st["phase"], "Monitoring");
+    assert!(st["satisfaction"].as_f64().unwrap() >= 0.99);
+    assert!(st["trials"].as_u64().unwrap() >= 1);
+    assert_eq!(
+        st["knobs"].as_array().unwrap().len(),
+        3,
+        "cpu of /camera and /detector, adaptor /image>/detector: {}",
+        st["knobs"]
+    );
+    let tuned = st["conditions"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|c| c["type"] == "Tuned")
+        .unwrap();
+    assert_eq!(tuned["status"], "True");
+    let best = st["bestTrial"].as_u64().unwrap() as usize;
+    assert!(st["trialHistory"][best]["feasible"].as_bool().unwrap());
+    assert!(st["nonCorePerformance"]["detections"].as_f64().unwrap() > 1.0);
+    // The learned config went to the library as a ConfigProfile.
+    let (profiles, _) = f.store.list(Kind::ConfigProfile, None).unwrap();
+    assert_eq!(profiles.len(), 1);
+    let reasons: Vec<String> = f.events().into_iter().map(|e| e.0).collect();
+    for r in ["Baseline", "Trial", "Satisfied", "ProfileSaved"] {
+        assert!(reasons.iter().any(|x| x == r), "event {r} in {reasons:?}");
+    }
+    assert!(f.metrics.render().contains("configbot_tuning_satisfaction"));
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn impossible_spec_ends_unsat_naming_constraint_and_best_value() {
+    // The planner's loop runs at 40 Hz: 45 Hz is impossible.
+    let f = Fixture::new(spec(45.0, 6, json!({})));
+    let h = f.spawn();
+    f.until("unsat", |r| {
+        matches!(
+            r.state,
+            State::Monitor {
+                satisfied: false,
+                ..
+            }
+        )
+    })
+    .await;
+    h.abort();
+    let st = f.status();
+    assert_eq!(st["phase"], "Unsat");
+    let reason = st["reason"].as_str().unwrap();
+    assert!(
+        reason.contains("constraint cmd-vel (>= 45) was not met"),
+        "{reason}"
+    );
+    let best: f64 = reason
+        .split("best value reached ")
+        .nth(1)
+        .and_then(|s| s.split_whitespace().next())
+        .unwrap()
+        .parse()
+        .unwrap();
+    assert!(
+        (38.0..=40.5).contains(&best),
+        "best value {best} in: {reason}"
+    );
+    assert!(reason.contains("relax the target to at most"), "{reason}");
+    let ready = st["conditions"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|c| c["type"] == "Ready")
+        .unwrap();
+    assert_eq!(ready["status"], "False");
+    assert_eq!(ready["reason"], "Unsat");
+    assert!(f.events().iter().any(|(r, _)| r == "Unsat"));
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn killed_mid_run_resumes_without_repeating_finished_trials() {
+    let f = Fixture::new(spec(35.0, 10, json!({"settleSeconds": 0})));
+    // Baseline is measure 1; trials take one or two measures each: measure 12 is mid-run.
+    f.sim.hang_at_measure(12);
+    let h = f.spawn();
+    tokio::time::timeout(Duration::from_secs(120), f.sim.hung())
+        .await
+        .expect("the run reaches the hanging measure");
+    h.abort();
+    let _ = h.await;
+    let before = f.run();
+    let k = before.trials.len();
+    assert!(k >= 3, "some trials finished before the kill: {k}");
+    let State::TrialProfile {
+        config: interrupted,
+        ..
+    } = before.state.clone()
+    else {
+        panic!("killed while profiling a trial, got {:?}", before.state)
+    };
+    // A new controller on the same database.
+    f.sim.clear_hang();
+    let store2 = Arc::new(Store::open(&f.dir.path().join("db.sqlite")).unwrap());
+    let ctx = RunnerCtx {
+        store: store2.clone(),
+        ..f.ctx()
+    };
+    let h = tokio::spawn(runner::run_spec(ctx, "default".into(), "nav-spec".into()));
+    f.until("the resumed run to finish", |r| {
+        matches!(r.state, State::Monitor { .. })
+    })
+    .await;
+    h.abort();
+    let after = f.run();
+    assert_eq!(
+        &after.trials[..k],
+        &before.trials[..],
+        "finished trials are kept exactly"
+    );
+    assert_eq!(
+        after.trials[k].config, interrupted,
+        "the interrupted trial is the first one measured after the restart"
+    );
+    for t in &after.trials[k + 1..] {
+        assert!(
+            !before.trials.iter().any(|b| b.config == t.config),
+            "a finished trial was repeated: {:?}",
+            t.config
+        );
+    }
+    assert_eq!(after.trials.len(), 10);
+    assert!(f.events().iter().any(|(r, _)| r == "Resumed"));
+}
+
+// Single-threaded: the runner and the test interleave only at await points,
+// so the app start lands while the runner waits in its monitor (as on a real robot).
+#[tokio::test]
+async fn familiar_context_reapplies_library_config_without_trials() {
+    let f = Fixture::new(spec(35.0, 10, json!({})));
+    let h = f.spawn();
+    f.until("first tuning", |r| monitoring(r, 5)).await;
+    let learned = f.run().state.clone();
+    let State::Monitor {
+        config: learned, ..
+    } = learned
+    else {
+        unreachable!()
+    };
+    // The non-core app stops: a new context (nothing to tune, the baseline holds).
+    f.sim.stop_app("det").await.unwrap();
+    f.until("the nav-only context", |r| {
+        monitoring(r, 5) && r.context.as_ref().is_some_and(|c| c.apps == ["nav"])
+    })
+    .await;
+    assert!(f.run().trials.is_empty());
+    // Back to the familiar context: the library config, at once, without trials.
+    let applies_before = f.sim.applied().len();
+    let t0 = configbot_controller::tuning::robot::Clock::now_ms(&*f.sim);
+    f.sim.start_app("det").await.unwrap();
+    f.until("the familiar context", |r| {
+        monitoring(r, 5) && r.context.as_ref().is_some_and(|c| c.apps.len() == 2)
+    })
+    .await;
+    h.abort();
+    let applied = f.sim.applied();
+    assert_eq!(
+        &applied[applies_before..],
+        std::slice::from_ref(&learned),
+        "exactly one apply: the learned config"
+    );
+    let run = f.run();
+    assert!(run.trials.is_empty(), "no trials in a familiar context");
+    assert_eq!(run.library_hits, 1);
+    let st = f.status();
+    let tuned = st["conditions"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|c| c["type"] == "Tuned")
+        .unwrap()
+        .clone();
+    assert_eq!(tuned["reason"], "LibraryConfig");
+    assert!(st["satisfaction"].as_f64().unwrap() >= 0.99);
+    let events = f.events();
+    let hit = events.iter().position(|(r, _)| r == "LibraryHit").unwrap();
+    assert!(
+        events[..hit].iter().any(|(r, m)| r == "ContextChanged"
+            && m.contains("det")
+            && m.contains("process exec")
+            && m.contains(" 0 ms after the last process exec")),
+        "{events:#?}"
+    );
+    // Simulated time from the app start to the re-apply: under 2 s.
+    let (at, _) = f.sim.applied_at().last().cloned().unwrap();
+    assert!(
+        at - t0 < 2000,
+        "re-applied {} ms after the app started",
+        at - t0
+    );
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn remediation_stops_the_non_core_app_and_is_undone_when_tuning_is_allowed() {
+    let mut s = spec(35.0, 4, json!({}));
+    s["metadata"]["annotations"] = json!({"configbot.dev/tuning-allowed": "false"});
+    let f = Fixture::new(s);
+    let h = f.spawn();
+    f.until("remediation", |r| {
+        matches!(r.state, State::Remediating { .. }) && r.monitor.windows >= 10
+    })
+    .await;
+    let run = f.run();
+    assert_eq!(
+        run.state,
+        State::Remediating {
+            apps: vec!["det".into()]
+        }
+    );
+    let g = f.sim.graph().await.unwrap();
+    assert!(
+        !g.nodes.contains_key("/detector"),
+        "the non-core app is stopped"
+    );
+    assert!(
+        run.monitor.satisfaction().unwrap() >= 0.99,
+        "the core constraint is restored"
+    );
+    assert_eq!(f.status()["phase"], "Remediating");
+    assert!(
+        f.events()
+            .iter()
+            .any(|(r, m)| r == "Remediated" && m.contains("det"))
+    );
+    // The task executive allows tuning again: undo, then relearn.
+    let mut obj = f
+        .store
+        .get(Kind::PerformanceSpec, "default", "nav-spec")
+        .unwrap()
+        .unwrap();
+    obj["metadata"]["annotations"] = json!({});
+    obj["metadata"]
+        .as_object_mut()
+        .unwrap()
+        .remove("resourceVersion");
+    f.store.put(Kind::PerformanceSpec, obj, false).unwrap();
+    f.until("relearning after the undo", |r| {
+        matches!(r.state, State::Monitor { .. })
+    })
+    .await;
+    h.abort();
+    assert!(f.events().iter().any(|(r, _)| r == "RemediationUndone"));
+    let g = f.sim.graph().await.unwrap();
+    assert!(g.nodes.contains_key("/detector"), "restarted");
+    assert!(
+        f.metrics
+            .render()
+            .contains("configbot_tuning_remediations_total")
+    );
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn server_with_a_robot_starts_a_runner_per_spec_and_stops_it_on_delete() {
+    use configbot_controller::server::{Server, ServerConfig};
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = ServerConfig {
+        db: dir.path().join("db.sqlite"),
+        socket: dir.path().join("api.sock"),
+        tcp: None,
+    };
+    let robot = sim(11);
+    let server = Server::start_with_robot_and_clock(&cfg, robot.clone(), robot.clone())
+        .await
+        .unwrap();
+    let store = server.state.store.clone();
+    store.put(Kind::RobotStack, stack(), true).unwrap();
+    store
+        .put(Kind::PerformanceSpec, spec(35.0, 6, json!({})), true)
+        .unwrap();
+    let deadline = tokio::time::Instant::now() + Duration::from_secs(120);
+    let status = loop {
+        let obj = store
+            .get(Kind::PerformanceSpec, "default", "nav-spec")
+            .unwrap()
+            .unwrap();
+        if obj["status"]["phase"] == "Monitoring" {
+            break obj["status"].clone();
+        }
+        assert!(tokio::time::Instant::now() < deadline, "{obj:#}");
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    };
+    let cond = |t: &str| {
+        status["conditions"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|c| c["type"] == t)
+            .cloned()
+            .unwrap_or_else(|| panic!("condition {t} in {status:#}"))
+    };
+    assert_eq!(cond("Accepted")["status"], "True", "the reconciler's part");
+    assert_eq!(cond("StackResolved")["status"], "True");
+    assert_eq!(
+        cond("Ready")["reason"],
+        "Satisfied",
+        "the runner owns Ready"
+    );
+    assert_eq!(
+        server
+            .state
+            .store
+            .list(Kind::ConfigProfile, None)
+            .unwrap()
+            .0
+            .len(),
+        1
+    );
+    // The CLI: the trials view and the library as ConfigProfiles (export as YAML).
+    let cli = |args: &[&str]| {
+        let out = std::process::Command::new(env!("CARGO_BIN_EXE_configbot"))
+            .arg("--server")
+            .arg(format!("unix://{}", cfg.socket.display()))
+            .args(args)
+            .output()
+            .unwrap();
+        assert!(out.status.success(), "{args:?}: {out:?}");
+        String::from_utf8(out.stdout).unwrap()
+    };
+    let view = cli(&["get", "trials", "nav-spec"]);
+    assert!(
+        view.starts_with("nav-spec: Monitoring  trials 6/6 [####################]"),
+        "{view}"
+    );
+    assert!(
+        view.contains("baseline") && view.contains("CMD-VEL"),
+        "{view}"
+    );
+    let profiles = cli(&["get", "cprof"]);
+    assert!(
+        profiles.contains("simbot") && profiles.contains("nav-spec"),
+        "{profiles}"
+    );
+    let exported = cli(&["get", "cprof", "-o", "yaml"]);
+    assert!(
+        exported.contains("kind: ConfigProfile") && exported.contains("robotModel: simbot"),
+        "{exported}"
+    );
+    let tuning = server.tuning.clone().unwrap();
+    assert_eq!(
+        tuning.running(),
+        vec![("default".to_string(), "nav-spec".to_string())]
+    );
+    store
+        .delete(Kind::PerformanceSpec, "default", "nav-spec")
+        .unwrap();
+    let deadline = tokio::time::Instant::now() + Duration::from_secs(30);
+    while !tuning.running().is_empty()
+        || runner::load_run(&store, "default", "nav-spec")
+            .unwrap()
+            .is_some()
+    {
+        assert!(
+            tokio::time::Instant::now() < deadline,
+            "runner still running"
+        );
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    drop(tuning);
+    server.stop();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn exported_profile_lets_another_robot_of_the_model_skip_tuning() {
+    let a = Fixture::new(spec(35.0, 8, json!({})));
+    let h = a.spawn();
+    a.until("robot A tuned", |r| monitoring(r, 5)).await;
+    h.abort();
+    let (profiles, _) = a.store.list(Kind::ConfigProfile, None).unwrap();
+    let yaml = serde_saphyr::to_string(&profiles[0]).unwrap();
+    // Robot B: a fresh database; the profile is imported as a manifest.
+    let b = Fixture::new(spec(35.0, 8, json!({})));
+    let loaded = configbot_manifests::load("profile.yaml", &yaml).unwrap();
+    assert_eq!(loaded.len(), 1);
+    b.store
+        .put(Kind::ConfigProfile, loaded[0].manifest.to_json(), true)
+        .unwrap();
+    let h = b.spawn();
+    b.until("robot B monitoring", |r| monitoring(r, 5)).await;
+    h.abort();
+    let run = b.run();
+    assert!(
+        run.trials.is_empty() && run.baseline.is_none(),
+        "no tuning on B"
+    );
+    assert_eq!(run.library_hits, 1);
+    assert_eq!(b.sim.applied(), vec![profiles_config(&profiles[0])]);
+}
+
+fn profiles_config(p: &Value) -> configbot_manifests::ResourceConfig {
+    serde_json::from_value(p["spec"]["config"].clone()).unwrap()
+}
