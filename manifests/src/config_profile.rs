@@ -30,6 +30,10 @@ pub struct ConfigProfileSpec {
     pub context: ProfileContext,
     /// The PerformanceSpec (name) the config satisfies.
     pub spec_name: String,
+    /// Digest of the spec's metrics and knobs when the config was learned; a
+    /// config learned for other targets is only used to warm-start relearning.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub spec_digest: Option<String>,
     /// The best known config.
     pub config: ResourceConfig,
     /// Constraint satisfaction measured for `config` (0..1).

@@ -9,8 +9,8 @@ use std::collections::BTreeMap;
 
 use configbot_dataplane::Graph;
 use configbot_manifests::{
-    API_VERSION, ConfigProfile, ConfigProfileSpec, Kind, ObjectMeta, ProfileContext, ProfileTrial,
-    ResourceConfig, RobotStack,
+    API_VERSION, ConfigProfile, ConfigProfileSpec, Kind, ObjectMeta, PerformanceSpecSpec,
+    ProfileContext, ProfileTrial, ResourceConfig, RobotStack,
 };
 use configbot_optimizer::Observation;
 
@@ -68,14 +68,34 @@ pub fn context(
     }
 }
 
-/// Object name of a spec's entry for a context: `<spec>-<8 hex digits of the context key>`.
-pub fn profile_name(spec_name: &str, ctx: &ProfileContext) -> String {
-    // FNV-1a: stable across builds and platforms (unlike std's hasher).
+/// FNV-1a: stable across builds and platforms (unlike std's hasher).
+fn fnv(text: &str) -> u64 {
     let mut h: u64 = 0xcbf2_9ce4_8422_2325;
-    for b in ctx.key().bytes() {
+    for b in text.bytes() {
         h ^= u64::from(b);
         h = h.wrapping_mul(0x0100_0000_01b3);
     }
+    h
+}
+
+/// Digest of what a learned config depends on: the spec's metrics and knobs.
+pub fn spec_digest(spec: &PerformanceSpecSpec) -> String {
+    let text = serde_json::to_string(&(&spec.metrics, &spec.knobs)).unwrap_or_default();
+    format!("{:016x}", fnv(&text))
+}
+
+/// Whether a profile was learned for this spec's targets (an imported
+/// profile without a digest is trusted).
+pub fn learned_for(p: &ConfigProfile, spec: &PerformanceSpecSpec) -> bool {
+    p.spec
+        .spec_digest
+        .as_ref()
+        .is_none_or(|d| *d == spec_digest(spec))
+}
+
+/// Object name of a spec's entry for a context: `<spec>-<8 hex digits of the context key>`.
+pub fn profile_name(spec_name: &str, ctx: &ProfileContext) -> String {
+    let h = fnv(&ctx.key());
     let mut name = format!("{spec_name}-{:08x}", (h ^ (h >> 32)) as u32);
     if name.len() > 253 {
         name = name[name.len() - 253..]
@@ -90,6 +110,7 @@ pub fn profile_name(spec_name: &str, ctx: &ProfileContext) -> String {
 pub fn profile(
     namespace: &str,
     spec_name: &str,
+    spec_digest: Option<String>,
     ctx: &ProfileContext,
     config: &ResourceConfig,
     satisfaction: f64,
@@ -110,6 +131,7 @@ pub fn profile(
         spec: ConfigProfileSpec {
             context: ctx.clone(),
             spec_name: spec_name.into(),
+            spec_digest,
             config: config.clone(),
             satisfaction: Some(satisfaction),
             objective,
@@ -249,6 +271,7 @@ mod tests {
         let p = profile(
             "default",
             "spec",
+            None,
             &ctx,
             &ResourceConfig::default(),
             1.0,

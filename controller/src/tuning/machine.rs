@@ -364,7 +364,7 @@ pub fn step(mut run: Run, input: Input, env: &Env<'_>) -> (Run, Vec<Output>) {
         ) => {
             run.context = Some(context.clone());
             match known {
-                Some(p) if !skip_library => {
+                Some(p) if !skip_library && library::learned_for(&p, env.spec) => {
                     run.library_hits += 1;
                     out.push(normal(
                         "LibraryHit",
@@ -724,6 +724,7 @@ fn verified(
             out.push(Output::SaveProfile(Box::new(library::profile(
                 env.namespace,
                 env.spec_name,
+                Some(library::spec_digest(env.spec)),
                 ctx,
                 &config,
                 sat,

@@ -89,12 +89,19 @@ fn profile() -> Box<ConfigProfile> {
     Box::new(library::profile(
         "default",
         "p",
+        None,
         &ctx(),
         &ResourceConfig::default(),
         1.0,
         Some(0.5),
         vec![],
     ))
+}
+
+fn stale() -> Box<ConfigProfile> {
+    let mut p = profile();
+    p.spec.spec_digest = Some("0000000000000000".into());
+    p
 }
 
 fn with(state: State) -> Run {
@@ -201,6 +208,19 @@ fn transition_table() {
             "relearning skips the library",
             observe(true),
             observed(true),
+            false,
+            true,
+            "Baseline",
+            vec![],
+        ),
+        (
+            "a profile learned for other targets only warm-starts",
+            observe(false),
+            Input::Observed {
+                graph: graph(),
+                context: ctx(),
+                known: Some(stale()),
+            },
             false,
             true,
             "Baseline",
