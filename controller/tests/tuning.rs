@@ -557,6 +557,48 @@ async fn server_with_a_robot_starts_a_runner_per_spec_and_stops_it_on_delete() {
         view.contains("baseline") && view.contains("CMD-VEL"),
         "{view}"
     );
+    // `-w` redraws on every status change (the runner keeps monitoring).
+    let mut watch = std::process::Command::new(env!("CARGO_BIN_EXE_configbot"))
+        .arg("--server")
+        .arg(format!("unix://{}", cfg.socket.display()))
+        .args(["get", "trials", "nav-spec", "-w"])
+        .stdout(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let stdout = watch.stdout.take().unwrap();
+    let (tx, rx) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        use std::io::Read;
+        let mut stdout = stdout;
+        let mut buf = [0u8; 4096];
+        let mut seen = String::new();
+        while let Ok(n) = stdout.read(&mut buf) {
+            if n == 0 {
+                break;
+            }
+            seen.push_str(&String::from_utf8_lossy(&buf[..n]));
+            if seen.matches("nav-spec: Monitoring").count() >= 2 && seen.contains("\x1b[2J") {
+                let _ = tx.send(seen);
+                break;
+            }
+        }
+    });
+    // Any change to the object redraws: touch an annotation.
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    let mut obj = store
+        .get(Kind::PerformanceSpec, "default", "nav-spec")
+        .unwrap()
+        .unwrap();
+    obj["metadata"]["annotations"] = json!({"note": "watched"});
+    obj["metadata"]
+        .as_object_mut()
+        .unwrap()
+        .remove("resourceVersion");
+    store.put(Kind::PerformanceSpec, obj, false).unwrap();
+    let redrawn = rx.recv_timeout(Duration::from_secs(30));
+    let _ = watch.kill();
+    let _ = watch.wait();
+    assert!(redrawn.is_ok(), "get trials -w redraws on status changes");
     let profiles = cli(&["get", "cprof"]);
     assert!(
         profiles.contains("simbot") && profiles.contains("nav-spec"),
