@@ -566,25 +566,38 @@ async fn server_with_a_robot_starts_a_runner_per_spec_and_stops_it_on_delete() {
         .spawn()
         .unwrap();
     let stdout = watch.stdout.take().unwrap();
-    let (tx, rx) = std::sync::mpsc::channel();
+    let (tx, rx) = std::sync::mpsc::channel::<String>();
     std::thread::spawn(move || {
         use std::io::Read;
         let mut stdout = stdout;
         let mut buf = [0u8; 4096];
-        let mut seen = String::new();
         while let Ok(n) = stdout.read(&mut buf) {
-            if n == 0 {
-                break;
-            }
-            seen.push_str(&String::from_utf8_lossy(&buf[..n]));
-            if seen.matches("nav-spec: Monitoring").count() >= 2 && seen.contains("\x1b[2J") {
-                let _ = tx.send(seen);
+            if n == 0
+                || tx
+                    .send(String::from_utf8_lossy(&buf[..n]).into_owned())
+                    .is_err()
+            {
                 break;
             }
         }
     });
+    let mut seen = String::new();
+    let read_until = |seen: &mut String, what: &str| {
+        let deadline = std::time::Instant::now() + Duration::from_secs(30);
+        while !seen.contains(what) {
+            let left = deadline.saturating_duration_since(std::time::Instant::now());
+            match rx.recv_timeout(left) {
+                Ok(chunk) => seen.push_str(&chunk),
+                Err(_) => return false,
+            }
+        }
+        true
+    };
+    assert!(
+        read_until(&mut seen, "nav-spec: Monitoring"),
+        "first view: {seen}"
+    );
     // Any change to the object redraws: touch an annotation.
-    tokio::time::sleep(Duration::from_millis(300)).await;
     let mut obj = store
         .get(Kind::PerformanceSpec, "default", "nav-spec")
         .unwrap()
@@ -595,10 +608,10 @@ async fn server_with_a_robot_starts_a_runner_per_spec_and_stops_it_on_delete() {
         .unwrap()
         .remove("resourceVersion");
     store.put(Kind::PerformanceSpec, obj, false).unwrap();
-    let redrawn = rx.recv_timeout(Duration::from_secs(30));
+    let redrawn = read_until(&mut seen, "\x1b[2J\x1b[Hnav-spec: Monitoring");
     let _ = watch.kill();
     let _ = watch.wait();
-    assert!(redrawn.is_ok(), "get trials -w redraws on status changes");
+    assert!(redrawn, "get trials -w redraws on changes: {seen}");
     let profiles = cli(&["get", "cprof"]);
     assert!(
         profiles.contains("simbot") && profiles.contains("nav-spec"),
