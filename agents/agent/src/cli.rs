@@ -131,7 +131,7 @@ pub fn read_stack(path: &Path) -> Result<StackSpec> {
     })?;
     let mut stacks = docs.iter().filter_map(|d| match &d.manifest {
         configbot_manifests::Manifest::RobotStack(s) => Some(s),
-        configbot_manifests::Manifest::PerformanceSpec(_) => None,
+        _ => None,
     });
     match (stacks.next(), stacks.next()) {
         (Some(s), None) => StackSpec::from_manifest(s),

@@ -164,7 +164,7 @@ pub async fn get(client: &Client, a: &GetArgs) -> anyhow::Result<ExitCode> {
 /// `configbot get trials SPEC [-w]`: the tuning run of one PerformanceSpec;
 /// with `-w` the view is redrawn on every change.
 async fn trials(client: &Client, a: &GetArgs) -> anyhow::Result<ExitCode> {
-    use configbot_controller::tuning::view::trials_view;
+    use crate::tuning::view::trials_view;
     let Some(name) = &a.name else {
         anyhow::bail!("usage: configbot get trials SPEC [-w] (SPEC is a PerformanceSpec name)");
     };
