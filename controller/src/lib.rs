@@ -10,6 +10,7 @@ pub mod client;
 pub mod metrics;
 pub mod reconcile;
 pub mod report;
+pub mod robot;
 pub mod server;
 pub mod store;
 pub mod table;

@@ -68,6 +68,13 @@ impl Server {
             store: store.clone(),
             metrics: metrics.clone(),
         };
+        let mut tasks = Vec::new();
+        if let Some((robot, _)) = &robot {
+            tasks.push(tokio::spawn(crate::robot::sync_stacks(
+                store.clone(),
+                robot.clone(),
+            )));
+        }
         let tuning = robot.map(|(robot, clock)| {
             Arc::new(TuningManager::new(RunnerCtx {
                 robot,
@@ -76,11 +83,11 @@ impl Server {
                 metrics: metrics.clone(),
             }))
         });
-        let mut tasks = vec![tokio::spawn(reconcile::run(Context {
+        tasks.push(tokio::spawn(reconcile::run(Context {
             store,
             metrics,
             tuning: tuning.clone(),
-        }))];
+        })));
         let router = api::router(state.clone());
         let socket = cfg.socket.clone();
         if let Some(dir) = socket.parent() {

@@ -3,6 +3,7 @@
 mod apply;
 mod demo;
 mod get;
+mod robot;
 
 use std::path::PathBuf;
 
@@ -91,6 +92,34 @@ struct ServeArgs {
     /// File holding the bearer token TCP clients must send.
     #[arg(long)]
     token_file: Option<PathBuf>,
+    #[command(flatten)]
+    robot: RobotArgs,
+}
+
+/// Which robot `serve` drives; without `--agent` or `--agent-socket` it
+/// stores and validates manifests but tunes nothing.
+#[derive(Debug, Args)]
+struct RobotArgs {
+    /// Run the node agent in this process (one-robot setup): it runs the newest
+    /// RobotStack's nodes in their cgroups and is the robot's ROS master. Its
+    /// files live beside the database (agent-state.json, ros1.db, logs/).
+    #[arg(long)]
+    agent: bool,
+    /// Drive a node agent that runs alone (`configbot agent`) at this Unix socket.
+    #[arg(long, conflicts_with = "agent")]
+    agent_socket: Option<PathBuf>,
+    /// With --agent: the agent's subtree in the cpu cgroup hierarchies.
+    #[arg(long, default_value = "configbot")]
+    cgroup_root: String,
+    /// With --agent: the robot's ROS_MASTER_URI, served by the agent.
+    #[arg(long, default_value = "http://localhost:11311/")]
+    ros_master_uri: String,
+    /// With --agent: no ROS data plane (CPU knobs only).
+    #[arg(long)]
+    no_ros: bool,
+    /// With --agent: the process monitor.
+    #[arg(long, value_enum, default_value_t = configbot_agent::cli::MonitorChoice::Auto)]
+    monitor: configbot_agent::cli::MonitorChoice,
 }
 
 #[derive(Debug, Args)]
@@ -148,7 +177,7 @@ async fn run(cli: Cli) -> anyhow::Result<std::process::ExitCode> {
                 socket: a.socket.clone(),
                 tcp,
             };
-            let server = crate::server::Server::start(&cfg).await?;
+            let (server, runtime) = robot::start_server(&cfg, &a.robot).await?;
             eprintln!(
                 "configbot: serving on {} (database {})",
                 a.socket.display(),
@@ -162,6 +191,10 @@ async fn run(cli: Cli) -> anyhow::Result<std::process::ExitCode> {
             }
             shutdown_signal().await;
             server.stop();
+            if let Some(rt) = runtime {
+                // Nodes keep running: a restarted server re-adopts them.
+                rt.shutdown().await;
+            }
             Ok(ExitCode::SUCCESS)
         }
         Command::Apply(a) => apply::run(&client(&cli)?, a).await,

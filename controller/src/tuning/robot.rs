@@ -94,6 +94,15 @@ pub trait Robot: Send + Sync {
     fn start_app<'a>(&'a self, app: &'a str) -> BoxFuture<'a, Result<(), RobotError>>;
     /// Runtime events from now on.
     fn events(&self) -> broadcast::Receiver<RobotEvent>;
+    /// Run `stack` (`None`: no stack, stop every node). Robots whose stack
+    /// is fixed (simulations) keep the default, which does nothing.
+    fn set_stack<'a>(
+        &'a self,
+        stack: Option<&'a configbot_manifests::RobotStack>,
+    ) -> BoxFuture<'a, Result<(), RobotError>> {
+        let _ = stack;
+        Box::pin(async { Ok(()) })
+    }
 }
 
 /// The time the tuning loop waits on (settling, monitor periods). Real robots

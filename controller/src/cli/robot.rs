@@ -1,0 +1,72 @@
+//! `serve`'s robot: none, the node runtime embedded in this process, or a
+//! node agent running alone.
+
+use std::path::Path;
+use std::sync::Arc;
+
+use configbot_agent::NodeRuntime;
+use configbot_agent::runtime::{RosOptions, RuntimeOptions};
+use configbot_cgroups::{Layout, SubtreeRoot, open_backend};
+
+use super::RobotArgs;
+use crate::robot::{EmbeddedRobot, RemoteRobot};
+use crate::server::{Server, ServerConfig};
+
+/// The runtime options of an embedded agent whose files live in `dir`.
+pub fn runtime_options(dir: &Path, args: &RobotArgs) -> anyhow::Result<RuntimeOptions> {
+    Ok(RuntimeOptions {
+        settings: configbot_agent::AgentSettings {
+            cgroup_root: SubtreeRoot::new(&args.cgroup_root)?,
+            state_file: dir.join("agent-state.json"),
+            log_dir: dir.join("logs"),
+            ..configbot_agent::AgentSettings::default()
+        },
+        ros: (!args.no_ros).then(|| RosOptions {
+            config: configbot_ros1::Ros1Config {
+                master_uri: args.ros_master_uri.clone(),
+                ..configbot_ros1::Ros1Config::default()
+            },
+            db_path: dir.join("ros1.db"),
+            policy: configbot_dataplane::policy::PolicyConfig::default(),
+        }),
+        monitor: args.monitor.preference(),
+    })
+}
+
+/// Starts the embedded node runtime with the stack it ran before (if any).
+pub async fn start_runtime(dir: &Path, args: &RobotArgs) -> anyhow::Result<NodeRuntime> {
+    std::fs::create_dir_all(dir)?;
+    let opts = runtime_options(dir, args)?;
+    let stack = configbot_agent::state::load(&opts.settings.state_file)?
+        .and_then(|s| s.stack)
+        .unwrap_or_default();
+    let layout = Layout::detect()?;
+    let backend = open_backend(&layout, opts.settings.cgroup_root.clone())?;
+    Ok(NodeRuntime::start(backend, opts, stack).await?)
+}
+
+/// Starts the control plane with the robot `args` asks for; returns the
+/// embedded runtime too, so the caller can shut it down.
+pub async fn start_server(
+    cfg: &ServerConfig,
+    args: &RobotArgs,
+) -> anyhow::Result<(Server, Option<NodeRuntime>)> {
+    if args.agent {
+        let dir = cfg.db.parent().unwrap_or(Path::new(".")).to_path_buf();
+        let rt = start_runtime(&dir, args).await?;
+        eprintln!(
+            "configbot: node agent embedded ({}; ROS master {})",
+            rt.monitor_status(),
+            rt.master_uri().as_deref().unwrap_or("disabled")
+        );
+        let robot = Arc::new(EmbeddedRobot::new(rt.clone()));
+        Ok((Server::start_with_robot(cfg, robot).await?, Some(rt)))
+    } else if let Some(sock) = &args.agent_socket {
+        let robot = Arc::new(RemoteRobot::new(
+            configbot_agent::client::AgentClient::unix(sock),
+        ));
+        Ok((Server::start_with_robot(cfg, robot).await?, None))
+    } else {
+        Ok((Server::start(cfg).await?, None))
+    }
+}

@@ -1,0 +1,369 @@
+//! The robots the controller drives, as the tuning loop's [`Robot`]: the node
+//! runtime embedded in this process (`configbot serve --agent`) or a remote
+//! agent over its API (`AgentClient`). Both map the runtime's events onto
+//! [`RobotEvent`]s. [`sync_stacks`] keeps the robot running the newest valid
+//! RobotStack of the store.
+
+use std::sync::Arc;
+
+use configbot_agent::client::AgentClient;
+use configbot_agent::measure::{MeasureReport, MeasureRequest};
+use configbot_agent::{AgentEvent, NodeRuntime, RuntimeEvent, StackSpec};
+use configbot_dataplane::Graph;
+use configbot_manifests::{Kind, ResourceConfig, RobotStack};
+use tokio::sync::broadcast;
+
+use crate::store::Store;
+use crate::tuning::robot::{BoxFuture, Robot, RobotError, RobotEvent};
+
+/// The tuning loop's view of one runtime event; `None` for events it ignores.
+pub fn robot_event(e: &RuntimeEvent) -> Option<RobotEvent> {
+    Some(match e {
+        RuntimeEvent::ProcessExec {
+            pid,
+            comm,
+            at_unix_ms,
+            ..
+        } => RobotEvent::ProcessExec {
+            pid: *pid,
+            comm: comm.clone(),
+            at_unix_ms: *at_unix_ms,
+        },
+        RuntimeEvent::ProcessExit { pid, .. } => RobotEvent::ProcessExit { pid: *pid },
+        RuntimeEvent::GraphChanged { events } => RobotEvent::GraphChanged {
+            events: events.clone(),
+        },
+        RuntimeEvent::Agent(AgentEvent::AppStopped { app }) => {
+            RobotEvent::AppStopped { app: app.clone() }
+        }
+        RuntimeEvent::Agent(AgentEvent::AppStarted { app }) => {
+            RobotEvent::AppStarted { app: app.clone() }
+        }
+        RuntimeEvent::Lagged { .. } => return None,
+        RuntimeEvent::Agent(other) => RobotEvent::Other {
+            name: serde_json::to_value(other)
+                .ok()
+                .and_then(|v| v["type"].as_str().map(str::to_owned))
+                .unwrap_or_default(),
+        },
+    })
+}
+
+/// Forwards `rx`'s runtime events, mapped, into `tx` until either side closes.
+fn forward(mut rx: broadcast::Receiver<RuntimeEvent>, tx: broadcast::Sender<RobotEvent>) {
+    tokio::spawn(async move {
+        loop {
+            match rx.recv().await {
+                Ok(e) => {
+                    if let Some(e) = robot_event(&e) {
+                        let _ = tx.send(e);
+                    }
+                }
+                Err(broadcast::error::RecvError::Lagged(_)) => continue,
+                Err(broadcast::error::RecvError::Closed) => break,
+            }
+        }
+    });
+}
+
+/// The node runtime in this process.
+pub struct EmbeddedRobot {
+    runtime: NodeRuntime,
+    events: broadcast::Sender<RobotEvent>,
+}
+
+impl std::fmt::Debug for EmbeddedRobot {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("EmbeddedRobot").finish_non_exhaustive()
+    }
+}
+
+impl EmbeddedRobot {
+    /// Wraps `runtime`; must be called inside a tokio runtime.
+    pub fn new(runtime: NodeRuntime) -> EmbeddedRobot {
+        let (events, _) = broadcast::channel(1024);
+        forward(runtime.events(), events.clone());
+        EmbeddedRobot { runtime, events }
+    }
+
+    pub fn runtime(&self) -> &NodeRuntime {
+        &self.runtime
+    }
+}
+
+fn wrap<E: std::error::Error + Send + Sync + 'static>(op: &'static str) -> impl Fn(E) -> RobotError {
+    move |e| RobotError::wrap(op, e)
+}
+
+impl Robot for EmbeddedRobot {
+    fn apply<'a>(&'a self, cfg: &'a ResourceConfig) -> BoxFuture<'a, Result<(), RobotError>> {
+        Box::pin(async move { self.runtime.apply(cfg).await.map_err(wrap("apply")) })
+    }
+
+    fn measure<'a>(
+        &'a self,
+        req: &'a MeasureRequest,
+    ) -> BoxFuture<'a, Result<MeasureReport, RobotError>> {
+        Box::pin(async move { self.runtime.measure(req).await.map_err(wrap("measure")) })
+    }
+
+    fn graph(&self) -> BoxFuture<'_, Result<Graph, RobotError>> {
+        Box::pin(async move { self.runtime.graph().await.map_err(wrap("graph")) })
+    }
+
+    fn stop_app<'a>(&'a self, app: &'a str) -> BoxFuture<'a, Result<(), RobotError>> {
+        Box::pin(async move { self.runtime.stop_app(app).await.map_err(wrap("stop_app")) })
+    }
+
+    fn start_app<'a>(&'a self, app: &'a str) -> BoxFuture<'a, Result<(), RobotError>> {
+        Box::pin(async move { self.runtime.start_app(app).await.map_err(wrap("start_app")) })
+    }
+
+    fn events(&self) -> broadcast::Receiver<RobotEvent> {
+        self.events.subscribe()
+    }
+
+    fn set_stack<'a>(
+        &'a self,
+        stack: Option<&'a RobotStack>,
+    ) -> BoxFuture<'a, Result<(), RobotError>> {
+        Box::pin(async move {
+            match stack {
+                Some(s) => self.runtime.set_stack(s).await,
+                None => self
+                    .runtime
+                    .set_stack_spec(StackSpec::default())
+                    .await
+                    .map(|_| ()),
+            }
+            .map_err(wrap("set_stack"))
+        })
+    }
+}
+
+/// A node agent running alone, reached over its API.
+pub struct RemoteRobot {
+    client: AgentClient,
+    events: broadcast::Sender<RobotEvent>,
+    /// Dropped with the robot: ends the event forwarding task.
+    _stop: tokio::sync::oneshot::Sender<()>,
+}
+
+impl std::fmt::Debug for RemoteRobot {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("RemoteRobot").finish_non_exhaustive()
+    }
+}
+
+impl RemoteRobot {
+    /// Follows the agent's event stream, reconnecting every second when it drops.
+    pub fn new(client: AgentClient) -> RemoteRobot {
+        let (events, _) = broadcast::channel(1024);
+        let (stop, mut stopped) = tokio::sync::oneshot::channel::<()>();
+        let (c, tx) = (client.clone(), events.clone());
+        tokio::spawn(async move {
+            loop {
+                tokio::select! {
+                    _ = &mut stopped => return,
+                    r = c.events() => match r {
+                        Ok(rx) => tokio::select! {
+                            _ = &mut stopped => return,
+                            () = forward_until_closed(rx, tx.clone()) => {}
+                        },
+                        Err(e) => eprintln!("configbot: agent events: {e}"),
+                    },
+                }
+                tokio::time::sleep(std::time::Duration::from_secs(1)).await;
+            }
+        });
+        RemoteRobot {
+            client,
+            events,
+            _stop: stop,
+        }
+    }
+}
+
+async fn forward_until_closed(
+    mut rx: broadcast::Receiver<RuntimeEvent>,
+    tx: broadcast::Sender<RobotEvent>,
+) {
+    loop {
+        match rx.recv().await {
+            Ok(e) => {
+                if let Some(e) = robot_event(&e) {
+                    let _ = tx.send(e);
+                }
+            }
+            Err(broadcast::error::RecvError::Lagged(_)) => continue,
+            Err(broadcast::error::RecvError::Closed) => return,
+        }
+    }
+}
+
+impl Robot for RemoteRobot {
+    fn apply<'a>(&'a self, cfg: &'a ResourceConfig) -> BoxFuture<'a, Result<(), RobotError>> {
+        Box::pin(async move { self.client.apply(cfg).await.map_err(wrap("apply")) })
+    }
+
+    fn measure<'a>(
+        &'a self,
+        req: &'a MeasureRequest,
+    ) -> BoxFuture<'a, Result<MeasureReport, RobotError>> {
+        Box::pin(async move { self.client.measure(req).await.map_err(wrap("measure")) })
+    }
+
+    fn graph(&self) -> BoxFuture<'_, Result<Graph, RobotError>> {
+        Box::pin(async move { self.client.graph().await.map_err(wrap("graph")) })
+    }
+
+    fn stop_app<'a>(&'a self, app: &'a str) -> BoxFuture<'a, Result<(), RobotError>> {
+        Box::pin(async move { self.client.stop_app(app).await.map_err(wrap("stop_app")) })
+    }
+
+    fn start_app<'a>(&'a self, app: &'a str) -> BoxFuture<'a, Result<(), RobotError>> {
+        Box::pin(async move { self.client.start_app(app).await.map_err(wrap("start_app")) })
+    }
+
+    fn events(&self) -> broadcast::Receiver<RobotEvent> {
+        self.events.subscribe()
+    }
+
+    fn set_stack<'a>(
+        &'a self,
+        stack: Option<&'a RobotStack>,
+    ) -> BoxFuture<'a, Result<(), RobotError>> {
+        Box::pin(async move {
+            let empty;
+            let stack = match stack {
+                Some(s) => s,
+                None => {
+                    empty = empty_stack();
+                    &empty
+                }
+            };
+            self.client.set_stack(stack).await.map_err(wrap("set_stack"))
+        })
+    }
+}
+
+fn empty_stack() -> RobotStack {
+    RobotStack {
+        api_version: configbot_manifests::API_VERSION.into(),
+        kind: "RobotStack".into(),
+        metadata: Default::default(),
+        spec: configbot_manifests::RobotStackSpec {
+            robot: Default::default(),
+            apps: Vec::new(),
+        },
+        status: None,
+    }
+}
+
+/// The stack the robot should run: the newest (by creation time, then name)
+/// RobotStack whose status is not `Invalid`/`Pending`.
+pub fn choose_stack(stacks: &[serde_json::Value]) -> Option<RobotStack> {
+    stacks
+        .iter()
+        .filter(|s| !matches!(s["status"]["phase"].as_str(), None | Some("Invalid" | "Pending")))
+        .max_by(|a, b| {
+            let key = |o: &serde_json::Value| {
+                (
+                    o["metadata"]["creationTimestamp"].as_str().unwrap_or("").to_owned(),
+                    o["metadata"]["name"].as_str().unwrap_or("").to_owned(),
+                )
+            };
+            key(a).cmp(&key(b))
+        })
+        .and_then(|s| serde_json::from_value(s.clone()).ok())
+}
+
+/// Keeps `robot` running the stack [`choose_stack`] picks, re-checking after
+/// every RobotStack change. Failures are logged and retried on the next change.
+pub async fn sync_stacks(store: Arc<Store>, robot: Arc<dyn Robot>) {
+    let mut changes = store.subscribe();
+    let mut current: Option<RobotStack> = None;
+    let mut first = true;
+    loop {
+        match store.list(Kind::RobotStack, None) {
+            Ok((stacks, _)) => {
+                let want = choose_stack(&stacks);
+                let same = match (&want, &current) {
+                    (Some(a), Some(b)) => a.spec == b.spec && a.metadata.name == b.metadata.name,
+                    (None, None) => !first,
+                    _ => false,
+                };
+                if !same {
+                    match robot.set_stack(want.as_ref()).await {
+                        Ok(()) => {
+                            current = want;
+                            first = false;
+                        }
+                        Err(e) => eprintln!("configbot: setting the robot's stack: {e}"),
+                    }
+                }
+            }
+            Err(e) => eprintln!("configbot: listing stacks: {e}"),
+        }
+        // Wait for the next RobotStack change (status writes included: a
+        // stack becomes eligible when it is accepted).
+        loop {
+            match changes.recv().await {
+                Ok(c) if c.kind == Kind::RobotStack => break,
+                Ok(_) => continue,
+                Err(broadcast::error::RecvError::Lagged(_)) => break,
+                Err(broadcast::error::RecvError::Closed) => return,
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use serde_json::json;
+
+    fn stack(name: &str, created: &str, phase: &str) -> serde_json::Value {
+        json!({"apiVersion": "configbot.dev/v1alpha1", "kind": "RobotStack",
+            "metadata": {"name": name, "creationTimestamp": created},
+            "spec": {"apps": [{"name": "a", "nodes": [{"name": "/n", "run": {"command": "x"}}]}]},
+            "status": {"phase": phase}})
+    }
+
+    #[test]
+    fn the_newest_accepted_stack_is_chosen() {
+        let s = [
+            stack("old", "2026-01-01T00:00:00Z", "Accepted"),
+            stack("new", "2026-02-01T00:00:00Z", "Accepted"),
+            stack("newest-invalid", "2026-03-01T00:00:00Z", "Invalid"),
+        ];
+        assert_eq!(choose_stack(&s).unwrap().metadata.name, "new");
+        assert!(choose_stack(&s[2..]).is_none());
+    }
+
+    #[test]
+    fn runtime_events_map_to_robot_events() {
+        let e = RuntimeEvent::ProcessExec {
+            pid: 7,
+            ppid: Some(1),
+            comm: Some("x".into()),
+            filename: None,
+            at_unix_ms: 5,
+            seen_unix_ms: 6,
+        };
+        assert_eq!(
+            robot_event(&e),
+            Some(RobotEvent::ProcessExec {
+                pid: 7,
+                comm: Some("x".into()),
+                at_unix_ms: 5
+            })
+        );
+        assert_eq!(robot_event(&RuntimeEvent::Lagged { missed: 3 }), None);
+        let stopped = RuntimeEvent::Agent(AgentEvent::AppStopped { app: "obj".into() });
+        assert_eq!(
+            robot_event(&stopped),
+            Some(RobotEvent::AppStopped { app: "obj".into() })
+        );
+    }
+}
