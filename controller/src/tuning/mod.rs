@@ -9,7 +9,6 @@
 //! spec: drives the machine, persists every step, writes status and events),
 //! [`sim`] (a deterministic simulated robot on simulated time, for tests).
 
-pub mod agent;
 pub mod knobs;
 pub mod library;
 pub mod machine;

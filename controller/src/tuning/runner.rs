@@ -558,10 +558,23 @@ impl TuningManager {
 
     /// The spec was deleted: stop its runner and drop its persisted run.
     pub fn forget(&self, ns: &str, name: &str) {
-        self.stop(ns, name);
-        if let Err(e) = self.ctx.store.delete_state(STATE_SCOPE, &run_key(ns, name)) {
-            eprintln!("configbot: tuning run {ns}/{name}: {e}");
-        }
+        let h = {
+            let mut r = self.runners.lock().unwrap_or_else(|p| p.into_inner());
+            r.remove(&(ns.to_string(), name.to_string()))
+        };
+        let store = self.ctx.store.clone();
+        let key = run_key(ns, name);
+        // Delete only once the runner has stopped: an iteration in flight
+        // could otherwise write the state again after the delete.
+        tokio::spawn(async move {
+            if let Some(h) = h {
+                h.abort();
+                let _ = h.await;
+            }
+            if let Err(e) = store.delete_state(STATE_SCOPE, &key) {
+                eprintln!("configbot: tuning run {key}: {e}");
+            }
+        });
     }
 
     /// Specs with a live runner.
