@@ -676,3 +676,48 @@ async fn exported_profile_lets_another_robot_of_the_model_skip_tuning() {
 fn profiles_config(p: &Value) -> configbot_manifests::ResourceConfig {
     serde_json::from_value(p["spec"]["config"].clone()).unwrap()
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn sustained_violation_triggers_relearning_that_restores_the_constraint() {
+    let f = Fixture::new(spec(35.0, 10, json!({})));
+    let h = f.spawn();
+    f.until("first tuning", |r| monitoring(r, 10)).await;
+    let first = f.run();
+    let State::Monitor {
+        config: learned, ..
+    } = first.state.clone()
+    else {
+        unreachable!()
+    };
+    // The lidar's work per scan triples (0.2 -> 0.6 CPU): the learned config
+    // no longer leaves the planner enough CPU.
+    f.sim.update_node("/lidar", |n| n.cycle_cost = 0.015);
+    f.until("relearned", |r| {
+        monitoring(r, 30) && matches!(&r.state, State::Monitor { config, .. } if *config != learned)
+    })
+    .await;
+    h.abort();
+    let events = f.events();
+    let violated = events
+        .iter()
+        .position(|(r, _)| r == "ConstraintViolated")
+        .unwrap_or_else(|| panic!("{events:#?}"));
+    assert!(
+        events[violated..].iter().any(|(r, _)| r == "Trial"),
+        "relearning ran trials"
+    );
+    let run = f.run();
+    let base = run.baseline.as_ref().unwrap();
+    assert!(
+        base.eval.satisfaction < 0.5,
+        "the relearn baseline is the old config, now violating: {:?}",
+        base.eval
+    );
+    assert_eq!(base.config, learned);
+    assert!(run.monitor.satisfaction().unwrap() >= 0.99);
+    assert!(
+        f.metrics
+            .render()
+            .contains("configbot_tuning_triggers_total{cause=\"ConstraintViolated\"")
+    );
+}

@@ -355,7 +355,10 @@ pub fn step(mut run: Run, input: Input, env: &Env<'_>) -> (Run, Vec<Output>) {
             }
         }
         (
-            State::Observe { skip_library, .. },
+            State::Observe {
+                skip_library,
+                trigger,
+            },
             Input::Observed {
                 graph,
                 context,
@@ -385,9 +388,14 @@ pub fn step(mut run: Run, input: Input, env: &Env<'_>) -> (Run, Vec<Output>) {
                     run.rejected.clear();
                     run.optimizer = None;
                     run.baseline = None;
+                    // A violation of a config that held means the workload
+                    // changed: the library's trials are stale, start cold.
+                    // Otherwise (a library config that failed at once, or one
+                    // learned for other targets) they warm-start the search.
+                    let stale = matches!(trigger, Trigger::ConstraintViolated { .. });
                     State::Baseline {
                         graph,
-                        prior: known,
+                        prior: known.filter(|_| !stale),
                     }
                 }
             }

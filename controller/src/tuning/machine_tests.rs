@@ -530,6 +530,35 @@ fn transition_table() {
     }
 }
 
+#[test]
+fn relearning_after_a_violation_starts_cold_after_a_failed_library_config_warm() {
+    let (st, sp) = (stack(), spec(1.0, 5));
+    let env = Env {
+        stack: &st,
+        spec: &sp.spec,
+        namespace: "default",
+        spec_name: "p",
+        cpus: 2.0,
+        tuning_allowed: true,
+    };
+    let violated = Trigger::ConstraintViolated {
+        seconds: 5.0,
+        satisfaction: 0.5,
+    };
+    let failed = Trigger::LibraryConfigFailed { satisfaction: 0.5 };
+    for (trigger, warm) in [(violated, false), (failed, true)] {
+        let state = State::Observe {
+            trigger: trigger.clone(),
+            skip_library: true,
+        };
+        let (run, _) = step(with(state), observed(true), &env);
+        let State::Baseline { prior, .. } = run.state else {
+            panic!("{trigger:?}: {:?}", run.state)
+        };
+        assert_eq!(prior.is_some(), warm, "{trigger:?}");
+    }
+}
+
 fn env<'a>(st: &'a RobotStack, sp: &'a PerformanceSpec) -> Env<'a> {
     Env {
         stack: st,

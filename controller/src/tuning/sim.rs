@@ -114,6 +114,13 @@ impl SimRobot {
         }
     }
 
+    /// Change a node's model at run time (a heavier workload, a new rate).
+    pub fn update_node(&self, name: &str, f: impl FnOnce(&mut SimNode)) {
+        if let Some(n) = self.lock().nodes.iter_mut().find(|n| n.name == name) {
+            f(n);
+        }
+    }
+
     /// Every config applied so far.
     pub fn applied(&self) -> Vec<ResourceConfig> {
         self.lock().applied.iter().map(|a| a.1.clone()).collect()
