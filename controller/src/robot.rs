@@ -91,7 +91,9 @@ impl EmbeddedRobot {
     }
 }
 
-fn wrap<E: std::error::Error + Send + Sync + 'static>(op: &'static str) -> impl Fn(E) -> RobotError {
+fn wrap<E: std::error::Error + Send + Sync + 'static>(
+    op: &'static str,
+) -> impl Fn(E) -> RobotError {
     move |e| RobotError::wrap(op, e)
 }
 
@@ -242,7 +244,10 @@ impl Robot for RemoteRobot {
                     &empty
                 }
             };
-            self.client.set_stack(stack).await.map_err(wrap("set_stack"))
+            self.client
+                .set_stack(stack)
+                .await
+                .map_err(wrap("set_stack"))
         })
     }
 }
@@ -265,11 +270,19 @@ fn empty_stack() -> RobotStack {
 pub fn choose_stack(stacks: &[serde_json::Value]) -> Option<RobotStack> {
     stacks
         .iter()
-        .filter(|s| !matches!(s["status"]["phase"].as_str(), None | Some("Invalid" | "Pending")))
+        .filter(|s| {
+            !matches!(
+                s["status"]["phase"].as_str(),
+                None | Some("Invalid" | "Pending")
+            )
+        })
         .max_by(|a, b| {
             let key = |o: &serde_json::Value| {
                 (
-                    o["metadata"]["creationTimestamp"].as_str().unwrap_or("").to_owned(),
+                    o["metadata"]["creationTimestamp"]
+                        .as_str()
+                        .unwrap_or("")
+                        .to_owned(),
                     o["metadata"]["name"].as_str().unwrap_or("").to_owned(),
                 )
             };

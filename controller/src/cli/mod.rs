@@ -99,27 +99,27 @@ struct ServeArgs {
 /// Which robot `serve` drives; without `--agent` or `--agent-socket` it
 /// stores and validates manifests but tunes nothing.
 #[derive(Debug, Args)]
-struct RobotArgs {
+pub struct RobotArgs {
     /// Run the node agent in this process (one-robot setup): it runs the newest
     /// RobotStack's nodes in their cgroups and is the robot's ROS master. Its
     /// files live beside the database (agent-state.json, ros1.db, logs/).
     #[arg(long)]
-    agent: bool,
+    pub agent: bool,
     /// Drive a node agent that runs alone (`configbot agent`) at this Unix socket.
     #[arg(long, conflicts_with = "agent")]
-    agent_socket: Option<PathBuf>,
+    pub agent_socket: Option<PathBuf>,
     /// With --agent: the agent's subtree in the cpu cgroup hierarchies.
     #[arg(long, default_value = "configbot")]
-    cgroup_root: String,
+    pub cgroup_root: String,
     /// With --agent: the robot's ROS_MASTER_URI, served by the agent.
     #[arg(long, default_value = "http://localhost:11311/")]
-    ros_master_uri: String,
+    pub ros_master_uri: String,
     /// With --agent: no ROS data plane (CPU knobs only).
     #[arg(long)]
-    no_ros: bool,
+    pub no_ros: bool,
     /// With --agent: the process monitor.
     #[arg(long, value_enum, default_value_t = configbot_agent::cli::MonitorChoice::Auto)]
-    monitor: configbot_agent::cli::MonitorChoice,
+    pub monitor: configbot_agent::cli::MonitorChoice,
 }
 
 #[derive(Debug, Args)]
