@@ -275,7 +275,7 @@ async fn demo(
 }
 
 /// Polls the spec's status, printing each new trial, until it is settled.
-async fn wait_for_outcome(
+pub async fn wait_for_outcome(
     robot: &PrivateRobot,
     name: &str,
     timeout: Duration,

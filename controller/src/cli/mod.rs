@@ -1,6 +1,7 @@
 //! Command-line interface: argument definitions and dispatch.
 
 mod apply;
+mod bench;
 mod demo;
 mod get;
 mod robot;
@@ -61,8 +62,15 @@ enum Command {
     Delete(get::DeleteArgs),
     /// Check manifests offline (no server needed); exits 1 on any error.
     Validate(ValidateArgs),
-    /// Start a private control plane, apply the example stacks and show their status.
+    /// Run an example stack on this machine, show the default config failing,
+    /// tune it live and print a before/after table with plots.
     Demo(demo::DemoArgs),
+    /// Reproduce the paper's comparison: default, random, CPU-only and full
+    /// ConfigBot configs on each example stack (table, JSON, plots).
+    #[command(
+        after_help = "Examples:\n  configbot bench                       # all stacks, 30 s windows (about 30 min)\n  configbot bench --stacks basic-nav --window-secs 10\n  configbot bench --quick --out /tmp/b  # CI: shape of the output only"
+    )]
+    Bench(bench::BenchArgs),
     /// Run the node agent alone on a robot: per-node cgroups, process
     /// supervision, the process monitor and the robot's ROS 1 master.
     #[command(
@@ -220,6 +228,7 @@ async fn run(cli: Cli) -> anyhow::Result<std::process::ExitCode> {
             }
         },
         Command::Demo(a) => demo::run(a).await,
+        Command::Bench(a) => bench::run(a).await,
         Command::Simnode(a) => {
             configbot_simnode::run(a.clone()).await?;
             Ok(ExitCode::SUCCESS)
