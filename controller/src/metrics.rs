@@ -2,6 +2,10 @@
 
 use prometheus::{Encoder, GaugeVec, IntCounterVec, IntGaugeVec, Opts, Registry, TextEncoder};
 
+/// Another component's metrics in text format (the embedded node agent's),
+/// appended to the control plane's `/metrics`.
+pub type MetricsSource = Box<dyn Fn() -> String + Send + Sync>;
+
 #[derive(Debug)]
 pub struct Metrics {
     pub registry: Registry,
@@ -9,6 +13,16 @@ pub struct Metrics {
     pub reconciles: IntCounterVec,
     pub objects: IntGaugeVec,
     pub tuning: TuningMetrics,
+    sources: Sources,
+}
+
+#[derive(Default)]
+struct Sources(std::sync::Mutex<Vec<MetricsSource>>);
+
+impl std::fmt::Debug for Sources {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("Sources")
+    }
 }
 
 /// Metrics of the tuning loop, labelled by namespace and spec.
@@ -154,6 +168,7 @@ impl Metrics {
             api_requests,
             reconciles,
             objects,
+            sources: Sources::default(),
         }
     }
 
@@ -161,12 +176,43 @@ impl Metrics {
     pub fn render(&self) -> String {
         let mut buf = Vec::new();
         let _ = TextEncoder::new().encode(&self.registry.gather(), &mut buf);
-        String::from_utf8(buf).unwrap_or_default()
+        let mut text = String::from_utf8(buf).unwrap_or_default();
+        let sources = self.sources.0.lock().unwrap_or_else(|e| e.into_inner());
+        for source in sources.iter() {
+            text.push_str(&source());
+        }
+        text
+    }
+
+    /// Appends `source`'s text to every rendering (metric names must not clash).
+    pub fn add_source(&self, source: MetricsSource) {
+        self.sources
+            .0
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .push(source);
     }
 }
 
 impl Default for Metrics {
     fn default() -> Self {
         Metrics::new()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sources_are_appended_to_the_exposition() {
+        let m = Metrics::new();
+        m.objects
+            .with_label_values(&["RobotStack", "Accepted"])
+            .set(1);
+        m.add_source(Box::new(|| "configbot_agent_up 1\n".to_owned()));
+        let text = m.render();
+        assert!(text.contains("configbot_objects{kind=\"RobotStack\",phase=\"Accepted\"} 1"));
+        assert!(text.ends_with("configbot_agent_up 1\n"));
     }
 }

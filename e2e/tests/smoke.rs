@@ -8,9 +8,13 @@ use std::time::Duration;
 fn serve_with_agent_accepts_a_stack() {
     let robot = common::Robot::start();
     robot.apply(&common::example("basic-nav.yaml"));
-    robot.wait_for("rs", "basic-nav", Duration::from_secs(30), "accepted", |o| {
-        o["status"]["phase"] != "Pending" && o["status"]["phase"].is_string()
-    });
+    robot.wait_for(
+        "rs",
+        "basic-nav",
+        Duration::from_secs(30),
+        "accepted",
+        |o| o["status"]["phase"] != "Pending" && o["status"]["phase"].is_string(),
+    );
     // Its five nodes run inside the robot's cgroup subtree.
     let deadline = std::time::Instant::now() + Duration::from_secs(30);
     while robot.pids().len() < 5 {

@@ -1,17 +1,29 @@
-//! `configbot demo`: start a private control plane with embedded defaults,
-//! apply the example stacks shipped in the binary, wait for the reconcilers,
-//! and show the result as `get` and `describe` would.
+//! `configbot demo`: on any Linux machine with root, start a private control
+//! plane with its embedded node agent, run the Basic-NAV stack with the object
+//! detector (simulated ROS nodes doing real CPU work), show the default config
+//! failing its core constraint, tune it live, and end with a before/after
+//! table and plots. Everything it starts is stopped and removed at the end.
 
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
-use std::time::Duration;
+use std::sync::Arc;
+use std::time::{Duration, Instant};
 
-use crate::client::{Client, Endpoint, path};
-use crate::server::{Server, ServerConfig};
 use clap::Args;
-use configbot_manifests::Kind;
+use configbot_agent::measure::MeasureReport;
+use configbot_manifests::{Kind, Manifest, PerformanceSpec, RobotStack};
+use serde_json::{Value, json};
+
+use super::RobotArgs;
+use crate::client::{Client, Endpoint};
+use crate::report::svg::{Chart, Mark, Rule, Series, colors};
+use crate::robot::EmbeddedRobot;
+use crate::server::{Server, ServerConfig};
+use crate::tuning::measure::{self, MetricDef};
+use crate::tuning::robot::Robot;
 
 /// The example stacks, embedded so the demo runs from any directory.
-const EXAMPLES: [(&str, &str); 3] = [
+pub const EXAMPLES: [(&str, &str); 3] = [
     (
         "basic-nav.yaml",
         include_str!("../../../manifests/examples/basic-nav.yaml"),
@@ -28,87 +40,485 @@ const EXAMPLES: [(&str, &str); 3] = [
 
 #[derive(Debug, Args)]
 pub struct DemoArgs {
-    /// Keep the demo's control plane running afterwards (until Ctrl-C).
+    /// Example stack to run: basic-nav, intermed-nav or terrain-nav.
+    #[arg(long, default_value = "basic-nav")]
+    stack: String,
+    /// Where to write the report (summary.json and the plots); default: a new
+    /// folder under the system's temp dir.
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Seconds of measurement before and after tuning.
+    #[arg(long, default_value_t = 15)]
+    window_secs: u64,
+    /// Give up tuning after this many seconds.
+    #[arg(long, default_value_t = 600)]
+    timeout_secs: u64,
+    /// Leave the stack running afterwards (until Ctrl-C).
     #[arg(long)]
     keep: bool,
 }
 
-pub async fn run(a: &DemoArgs) -> anyhow::Result<ExitCode> {
-    let dir = std::env::temp_dir().join(format!("configbot-demo-{}", std::process::id()));
-    std::fs::create_dir_all(&dir)?;
-    let cfg = ServerConfig {
-        db: dir.join("configbot.db"),
-        socket: dir.join("configbot.sock"),
-        tcp: None,
-    };
-    println!(
-        "==> starting a control plane (database {}, socket {})",
-        cfg.db.display(),
-        cfg.socket.display()
+/// The stack and spec of an example, with `command: configbot` pointed at this program.
+pub fn example(name: &str) -> anyhow::Result<(RobotStack, PerformanceSpec)> {
+    let file = format!("{name}.yaml");
+    let (_, text) = EXAMPLES.iter().find(|(f, _)| *f == file).ok_or_else(|| {
+        anyhow::anyhow!("no example stack {name:?} (basic-nav, intermed-nav, terrain-nav)")
+    })?;
+    let exe = std::env::current_exe()?;
+    let text = text.replace(
+        "command: configbot\n",
+        &format!("command: {}\n", exe.display()),
     );
-    let server = Server::start(&cfg).await?;
-    let client = Client::new(Endpoint::Unix(cfg.socket.clone()));
-    println!("==> applying the example stacks");
-    let mut loaded = Vec::new();
-    for (name, text) in EXAMPLES {
-        loaded.extend(configbot_manifests::load(name, text)?);
-    }
-    loaded.sort_by_key(|l| l.manifest.kind());
-    for l in &loaded {
-        let obj = l.manifest.to_json();
-        let r = super::apply::apply_one(&client, &obj, l.manifest.kind(), false).await?;
-        println!(
-            "{}.{}/{} {}",
-            l.manifest.kind().singular(),
-            configbot_manifests::GROUP,
-            l.manifest.metadata().name,
-            r.word()
-        );
-    }
-    // Wait until every object's status reflects its current generation.
-    let deadline = tokio::time::Instant::now() + Duration::from_secs(10);
-    loop {
-        let mut done = true;
-        for kind in Kind::ALL {
-            let list = client.get(&path(kind, Some("default"), None)).await?;
-            for o in list["items"].as_array().into_iter().flatten() {
-                done &= o["status"]["observedGeneration"] == o["metadata"]["generation"];
-            }
+    let mut stack = None;
+    let mut spec = None;
+    for l in configbot_manifests::load(&file, &text)? {
+        match l.manifest {
+            Manifest::RobotStack(s) => stack = Some(s),
+            Manifest::PerformanceSpec(s) => spec = Some(s),
+            _ => {}
         }
-        if done || tokio::time::Instant::now() > deadline {
-            break;
+    }
+    match (stack, spec) {
+        (Some(a), Some(b)) => Ok((a, b)),
+        _ => anyhow::bail!("{file} needs a RobotStack and a PerformanceSpec"),
+    }
+}
+
+/// A private robot: control plane + embedded agent in a temp dir, with its
+/// own cgroup subtree and ROS master port. `close` removes everything.
+pub struct PrivateRobot {
+    pub dir: PathBuf,
+    pub server: Server,
+    pub robot: Arc<EmbeddedRobot>,
+    pub client: Client,
+    pub master_uri: String,
+}
+
+impl PrivateRobot {
+    pub async fn start(dir: &Path) -> anyhow::Result<PrivateRobot> {
+        std::fs::create_dir_all(dir)?;
+        let port = std::net::TcpListener::bind("127.0.0.1:0")?
+            .local_addr()?
+            .port();
+        let master_uri = format!("http://localhost:{port}/");
+        let args = RobotArgs {
+            agent: true,
+            agent_socket: None,
+            cgroup_root: format!("configbot-demo-{}", std::process::id()),
+            ros_master_uri: master_uri.clone(),
+            no_ros: false,
+            monitor: configbot_agent::cli::MonitorChoice::Auto,
+        };
+        let rt = super::robot::start_runtime(&dir.join("agent"), &args).await?;
+        let robot = Arc::new(EmbeddedRobot::new(rt));
+        let cfg = ServerConfig {
+            db: dir.join("configbot.db"),
+            socket: dir.join("configbot.sock"),
+            tcp: None,
+        };
+        let server = Server::start_with_robot(&cfg, robot.clone()).await?;
+        Ok(PrivateRobot {
+            dir: dir.to_path_buf(),
+            server,
+            robot,
+            client: Client::new(Endpoint::Unix(cfg.socket)),
+            master_uri,
+        })
+    }
+
+    /// Stops the control plane, every node, and removes the cgroups.
+    pub async fn close(self) -> anyhow::Result<()> {
+        self.server.stop();
+        self.robot.runtime().agent().teardown().await?;
+        self.robot.runtime().shutdown().await;
+        Ok(())
+    }
+
+    pub async fn apply(&self, obj: &Value, kind: Kind) -> anyhow::Result<()> {
+        super::apply::apply_one(&self.client, obj, kind, false).await?;
+        Ok(())
+    }
+}
+
+/// Measures `defs` for `secs` seconds in 1 s windows.
+pub async fn measure_defs(
+    robot: &dyn Robot,
+    defs: &[MetricDef],
+    secs: u64,
+) -> anyhow::Result<MeasureReport> {
+    Ok(robot
+        .measure(&measure::request(defs, &[], secs * 1000, 1000))
+        .await?)
+}
+
+/// Waits until every `defs` topic delivers messages (the stack is up).
+async fn wait_for_flow(robot: &dyn Robot, defs: &[MetricDef], timeout: Duration) -> bool {
+    let deadline = Instant::now() + timeout;
+    while Instant::now() < deadline {
+        if let Ok(r) = measure_defs(robot, defs, 1).await
+            && r.series.iter().all(|s| s.mean > 0.0)
+        {
+            return true;
         }
-        tokio::time::sleep(Duration::from_millis(50)).await;
     }
-    let server_arg = format!("unix://{}", cfg.socket.display());
-    for kind in Kind::ALL {
-        println!("\n==> configbot get {}", kind.short_names()[0]);
-        let list = client.get(&path(kind, Some("default"), None)).await?;
-        let items = list["items"].as_array().cloned().unwrap_or_default();
-        let now = time::OffsetDateTime::now_utc();
-        let rows: Vec<Vec<String>> = items
-            .iter()
-            .map(|o| crate::table::row(kind, o, false, false, now))
-            .collect();
-        print!(
-            "{}",
-            crate::table::render(&crate::table::headers(kind, false, false), &rows)
-        );
+    false
+}
+
+pub async fn run(a: &DemoArgs) -> anyhow::Result<ExitCode> {
+    let (stack, spec) = example(&a.stack)?;
+    let out = a.out.clone().unwrap_or_else(|| {
+        std::env::temp_dir().join(format!("configbot-demo-{}", std::process::id()))
+    });
+    println!(
+        "==> ConfigBot demo: {} on this machine ({} CPUs)",
+        a.stack,
+        cpus()
+    );
+    println!("    report folder {}", out.display());
+    // A fresh robot every time: no stack, registrations or library from a previous run.
+    let state = out.join("state");
+    if state.exists() {
+        std::fs::remove_dir_all(&state)?;
     }
-    println!("\n==> configbot describe pspec basic-nav");
-    super::get::describe(
-        &client,
-        &super::get::DescribeArgs::for_demo("pspec", "basic-nav"),
-    )
-    .await?;
-    println!("\nTuning live stacks needs the node agent (coming with the agent and tuning loop).");
+    let robot = PrivateRobot::start(&state).await?;
+    let result = demo(a, &robot, &stack, &spec, &out).await;
     if a.keep {
         println!(
-            "\nThe control plane keeps running: configbot --server {server_arg} get rs   (Ctrl-C to stop)"
+            "\nThe stack keeps running: configbot --server unix://{} get trials {}   (ROS_MASTER_URI={}; Ctrl-C to stop)",
+            robot.dir.join("configbot.sock").display(),
+            spec.metadata.name,
+            robot.master_uri
         );
         let _ = tokio::signal::ctrl_c().await;
     }
-    server.stop();
-    let _ = std::fs::remove_dir_all(&dir);
-    Ok(ExitCode::SUCCESS)
+    println!("==> stopping the stack and removing its cgroups");
+    robot.close().await?;
+    result
+}
+
+async fn demo(
+    a: &DemoArgs,
+    robot: &PrivateRobot,
+    stack: &RobotStack,
+    spec: &PerformanceSpec,
+    out: &Path,
+) -> anyhow::Result<ExitCode> {
+    let defs = measure::metric_defs(&stack.spec, &spec.spec);
+    println!(
+        "==> starting {} nodes ({}) with Linux's defaults (no limits); ROS_MASTER_URI={}",
+        stack.spec.nodes().count(),
+        stack
+            .spec
+            .apps
+            .iter()
+            .map(|x| x.name.as_str())
+            .collect::<Vec<_>>()
+            .join(", "),
+        robot.master_uri
+    );
+    robot
+        .apply(&serde_json::to_value(stack)?, Kind::RobotStack)
+        .await?;
+    anyhow::ensure!(
+        wait_for_flow(robot.robot.as_ref(), &defs, Duration::from_secs(60)).await,
+        "the stack's topics did not start flowing within 60 s (logs: {})",
+        robot.dir.join("agent/logs").display()
+    );
+    println!("==> measuring the default config for {} s", a.window_secs);
+    let before = measure_defs(robot.robot.as_ref(), &defs, a.window_secs).await?;
+    print_eval("default", &defs, &before);
+
+    println!("==> applying the PerformanceSpec: ConfigBot tunes the live stack");
+    let started = Instant::now();
+    robot
+        .apply(&serde_json::to_value(spec)?, Kind::PerformanceSpec)
+        .await?;
+    let name = &spec.metadata.name;
+    let status = wait_for_outcome(robot, name, Duration::from_secs(a.timeout_secs)).await?;
+    let tuning_secs = started.elapsed().as_secs_f64();
+    let phase = status["phase"].as_str().unwrap_or("").to_owned();
+    println!(
+        "\n==> {phase} after {} trials in {tuning_secs:.0} s",
+        status["trials"].as_u64().unwrap_or(0)
+    );
+    if let Some(r) = status["reason"].as_str() {
+        println!("    {r}");
+    }
+    println!("==> measuring the tuned config for {} s", a.window_secs);
+    let after = measure_defs(robot.robot.as_ref(), &defs, a.window_secs).await?;
+    print_eval("configbot", &defs, &after);
+
+    let s = spec.spec.tuning.scalarization;
+    let (eb, ea) = (
+        measure::evaluate(&defs, &before, s),
+        measure::evaluate(&defs, &after, s),
+    );
+    println!("\n{}", before_after_table(&defs, &eb, &ea));
+    std::fs::create_dir_all(out)?;
+    let plots = write_plots(out, &defs, &before, &after, &status)?;
+    let summary = json!({
+        "stack": a.stack, "phase": phase, "tuningSeconds": tuning_secs,
+        "trials": status["trials"], "bestConfig": status["bestConfig"],
+        "before": eb, "after": ea, "plots": plots,
+    });
+    let summary_path = out.join("summary.json");
+    std::fs::write(&summary_path, serde_json::to_string_pretty(&summary)?)?;
+    println!("report: {}", summary_path.display());
+    for p in &plots {
+        println!("plot:   {p}");
+    }
+    Ok(if ea.satisfaction >= 0.99 {
+        ExitCode::SUCCESS
+    } else {
+        ExitCode::FAILURE
+    })
+}
+
+/// Polls the spec's status, printing each new trial, until it is settled.
+pub async fn wait_for_outcome(
+    robot: &PrivateRobot,
+    name: &str,
+    timeout: Duration,
+) -> anyhow::Result<Value> {
+    let path = crate::client::path(Kind::PerformanceSpec, Some("default"), Some(name));
+    let deadline = Instant::now() + timeout;
+    let mut shown = 0usize;
+    loop {
+        let obj = robot.client.get(&path).await?;
+        let st = obj["status"].clone();
+        let trials = st["trialHistory"].as_array().cloned().unwrap_or_default();
+        for t in trials.iter().skip(shown) {
+            println!(
+                "    trial {:>2}/{}  satisfaction {:>5.1}%  objective {:>5}  {}  {}",
+                t["index"].as_u64().unwrap_or(0) + 1,
+                st["maxTrials"].as_u64().unwrap_or(0),
+                t["satisfaction"].as_f64().unwrap_or(0.0) * 100.0,
+                t["objective"]
+                    .as_f64()
+                    .map_or("-".into(), |o| format!("{o:.3}")),
+                if t["feasible"].as_bool() == Some(true) {
+                    "feasible  "
+                } else {
+                    "infeasible"
+                },
+                crate::tuning::view::config_text(&t["config"]),
+            );
+        }
+        shown = trials.len();
+        let phase = st["phase"].as_str().unwrap_or("");
+        if matches!(phase, "Monitoring" | "Unsat" | "Satisfied") && st["bestConfig"].is_object()
+            || phase == "Unsat"
+        {
+            return Ok(st);
+        }
+        anyhow::ensure!(
+            Instant::now() < deadline,
+            "tuning did not finish within {} s (phase {phase:?})",
+            timeout.as_secs()
+        );
+        tokio::time::sleep(Duration::from_millis(500)).await;
+    }
+}
+
+fn print_eval(label: &str, defs: &[MetricDef], r: &MeasureReport) {
+    let e = measure::evaluate(defs, r, Default::default());
+    let parts: Vec<String> = defs
+        .iter()
+        .map(|d| {
+            format!(
+                "{} {:.1}",
+                d.name,
+                e.means.get(&d.name).copied().unwrap_or(0.0)
+            )
+        })
+        .collect();
+    println!(
+        "    {label}: constraint satisfaction {:.1}%  ({})",
+        e.satisfaction * 100.0,
+        parts.join(", ")
+    );
+}
+
+/// The before/after table (pure).
+pub fn before_after_table(
+    defs: &[MetricDef],
+    before: &measure::Evaluation,
+    after: &measure::Evaluation,
+) -> String {
+    let mut rows = vec![vec![
+        "satisfaction (core, 1 s windows)".to_owned(),
+        "100%".to_owned(),
+        format!("{:.1}%", before.satisfaction * 100.0),
+        format!("{:.1}%", after.satisfaction * 100.0),
+    ]];
+    for d in defs {
+        let v = |e: &measure::Evaluation| e.means.get(&d.name).copied().unwrap_or(0.0);
+        rows.push(vec![
+            format!("{} ({})", d.name, if d.core { "core" } else { "non-core" }),
+            d.target_text(),
+            format!("{:.1}", v(before)),
+            format!("{:.1}", v(after)),
+        ]);
+    }
+    let headers = ["METRIC", "TARGET", "DEFAULT", "CONFIGBOT"].map(String::from);
+    crate::table::render(&headers, &rows)
+}
+
+/// Writes progress.svg (each trial, best so far) and core-rate.svg (per-second
+/// core rates before and after); returns their paths.
+fn write_plots(
+    out: &Path,
+    defs: &[MetricDef],
+    before: &MeasureReport,
+    after: &MeasureReport,
+    status: &Value,
+) -> anyhow::Result<Vec<String>> {
+    let mut paths = Vec::new();
+    let trials = status["trialHistory"]
+        .as_array()
+        .cloned()
+        .unwrap_or_default();
+    let progress = progress_chart(&trials);
+    let p = out.join("progress.svg");
+    std::fs::write(&p, progress.to_svg())?;
+    paths.push(p.display().to_string());
+    if let Some(core) = defs.iter().find(|d| d.core) {
+        let chart = histogram_chart(core, before, after);
+        let p = out.join("core-rate.svg");
+        std::fs::write(&p, chart.to_svg())?;
+        paths.push(p.display().to_string());
+    }
+    Ok(paths)
+}
+
+/// Optimisation progress as in the paper's Fig. 5 (pure).
+pub fn progress_chart(trials: &[Value]) -> Chart {
+    let mut feasible = Vec::new();
+    let mut infeasible = Vec::new();
+    let mut best = Vec::new();
+    let mut best_so_far: Option<f64> = None;
+    for t in trials {
+        let i = t["index"].as_f64().unwrap_or(0.0) + 1.0;
+        let o = t["objective"].as_f64().unwrap_or(0.0);
+        if t["feasible"].as_bool() == Some(true) {
+            feasible.push((i, o));
+            best_so_far = Some(best_so_far.map_or(o, |b: f64| b.max(o)));
+        } else {
+            infeasible.push((i, o));
+        }
+        if let Some(b) = best_so_far {
+            best.push((i, b));
+        }
+    }
+    Chart {
+        title: "Tuning progress".into(),
+        x_label: "trial".into(),
+        y_label: "non-core objective (1 = every target met)".into(),
+        series: vec![
+            Series {
+                name: "feasible".into(),
+                mark: Mark::Dot,
+                color: colors::FEASIBLE,
+                points: feasible,
+            },
+            Series {
+                name: "infeasible".into(),
+                mark: Mark::Cross,
+                color: colors::INFEASIBLE,
+                points: infeasible,
+            },
+            Series {
+                name: "best feasible".into(),
+                mark: Mark::Step,
+                color: colors::BEST,
+                points: best,
+            },
+        ],
+        y_from_zero: true,
+        ..Chart::default()
+    }
+}
+
+/// Histogram of the per-second core rate, default vs tuned, as in Fig. 6 (pure).
+pub fn histogram_chart(core: &MetricDef, before: &MeasureReport, after: &MeasureReport) -> Chart {
+    let values = |r: &MeasureReport| {
+        r.series
+            .iter()
+            .find(|s| s.probe == core.probe)
+            .map(|s| s.values.clone())
+            .unwrap_or_default()
+    };
+    let width = 2.0;
+    let bins = |v: &[f64]| {
+        let mut counts = std::collections::BTreeMap::<i64, f64>::new();
+        for x in v {
+            *counts.entry((x / width).floor() as i64).or_default() += 1.0;
+        }
+        counts
+            .into_iter()
+            .map(|(b, c)| (b as f64 * width, c))
+            .collect::<Vec<_>>()
+    };
+    Chart {
+        title: format!("{}: per-second rate", core.name),
+        x_label: "Hz (1 s windows)".into(),
+        y_label: "windows".into(),
+        series: vec![
+            Series {
+                name: "default".into(),
+                mark: Mark::Bar,
+                color: colors::INFEASIBLE,
+                points: bins(&values(before)),
+            },
+            Series {
+                name: "configbot".into(),
+                mark: Mark::Bar,
+                color: colors::CORE,
+                points: bins(&values(after)),
+            },
+        ],
+        rules: vec![Rule {
+            label: format!("target {}", core.target_text()),
+            value: core.target,
+            vertical: true,
+        }],
+        bar_width: width,
+        y_from_zero: true,
+    }
+}
+
+fn cpus() -> usize {
+    std::thread::available_parallelism().map_or(1, |n| n.get())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_example_loads_with_this_program_as_its_command() {
+        for (file, _) in EXAMPLES {
+            let (stack, spec) = example(file.trim_end_matches(".yaml")).unwrap();
+            assert_eq!(stack.metadata.name, spec.spec.stack_ref.name);
+            let exe = std::env::current_exe().unwrap();
+            for (_, n) in stack.spec.nodes() {
+                assert_eq!(n.run.as_ref().unwrap().command, exe.display().to_string());
+            }
+        }
+        assert!(example("nope").is_err());
+    }
+
+    #[test]
+    fn progress_marks_infeasible_trials_and_tracks_the_best() {
+        let t = |i: u32, o: f64, f: bool| json!({"index": i, "objective": o, "feasible": f});
+        let c = progress_chart(&[
+            t(0, 0.9, false),
+            t(1, 0.3, true),
+            t(2, 0.5, true),
+            t(3, 0.4, true),
+        ]);
+        assert_eq!(c.series[0].points.len(), 3);
+        assert_eq!(c.series[1].points, vec![(1.0, 0.9)]);
+        assert_eq!(c.series[2].points, vec![(2.0, 0.3), (3.0, 0.5), (4.0, 0.5)]);
+    }
 }

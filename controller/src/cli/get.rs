@@ -46,16 +46,6 @@ pub struct DescribeArgs {
     namespace: String,
 }
 
-impl DescribeArgs {
-    pub fn for_demo(kind: &str, name: &str) -> DescribeArgs {
-        DescribeArgs {
-            kind: kind.into(),
-            name: name.into(),
-            namespace: "default".into(),
-        }
-    }
-}
-
 #[derive(Debug, Args)]
 pub struct DeleteArgs {
     kind: String,

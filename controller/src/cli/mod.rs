@@ -1,6 +1,7 @@
 //! Command-line interface: argument definitions and dispatch.
 
 mod apply;
+mod bench;
 mod demo;
 mod get;
 mod robot;
@@ -61,8 +62,15 @@ enum Command {
     Delete(get::DeleteArgs),
     /// Check manifests offline (no server needed); exits 1 on any error.
     Validate(ValidateArgs),
-    /// Start a private control plane, apply the example stacks and show their status.
+    /// Run an example stack on this machine, show the default config failing,
+    /// tune it live and print a before/after table with plots.
     Demo(demo::DemoArgs),
+    /// Reproduce the paper's comparison: default, random, CPU-only and full
+    /// ConfigBot configs on each example stack (table, JSON, plots).
+    #[command(
+        after_help = "Examples:\n  configbot bench                       # all stacks, 30 s windows (about 30 min)\n  configbot bench --stacks basic-nav --window-secs 10\n  configbot bench --quick --out /tmp/b  # CI: shape of the output only"
+    )]
+    Bench(bench::BenchArgs),
     /// Run the node agent alone on a robot: per-node cgroups, process
     /// supervision, the process monitor and the robot's ROS 1 master.
     #[command(
@@ -99,27 +107,27 @@ struct ServeArgs {
 /// Which robot `serve` drives; without `--agent` or `--agent-socket` it
 /// stores and validates manifests but tunes nothing.
 #[derive(Debug, Args)]
-struct RobotArgs {
+pub struct RobotArgs {
     /// Run the node agent in this process (one-robot setup): it runs the newest
     /// RobotStack's nodes in their cgroups and is the robot's ROS master. Its
     /// files live beside the database (agent-state.json, ros1.db, logs/).
     #[arg(long)]
-    agent: bool,
+    pub agent: bool,
     /// Drive a node agent that runs alone (`configbot agent`) at this Unix socket.
     #[arg(long, conflicts_with = "agent")]
-    agent_socket: Option<PathBuf>,
+    pub agent_socket: Option<PathBuf>,
     /// With --agent: the agent's subtree in the cpu cgroup hierarchies.
     #[arg(long, default_value = "configbot")]
-    cgroup_root: String,
+    pub cgroup_root: String,
     /// With --agent: the robot's ROS_MASTER_URI, served by the agent.
     #[arg(long, default_value = "http://localhost:11311/")]
-    ros_master_uri: String,
+    pub ros_master_uri: String,
     /// With --agent: no ROS data plane (CPU knobs only).
     #[arg(long)]
-    no_ros: bool,
+    pub no_ros: bool,
     /// With --agent: the process monitor.
     #[arg(long, value_enum, default_value_t = configbot_agent::cli::MonitorChoice::Auto)]
-    monitor: configbot_agent::cli::MonitorChoice,
+    pub monitor: configbot_agent::cli::MonitorChoice,
 }
 
 #[derive(Debug, Args)]
@@ -220,6 +228,7 @@ async fn run(cli: Cli) -> anyhow::Result<std::process::ExitCode> {
             }
         },
         Command::Demo(a) => demo::run(a).await,
+        Command::Bench(a) => bench::run(a).await,
         Command::Simnode(a) => {
             configbot_simnode::run(a.clone()).await?;
             Ok(ExitCode::SUCCESS)

@@ -60,7 +60,13 @@ pub async fn start_server(
             rt.master_uri().as_deref().unwrap_or("disabled")
         );
         let robot = Arc::new(EmbeddedRobot::new(rt.clone()));
-        Ok((Server::start_with_robot(cfg, robot).await?, Some(rt)))
+        let server = Server::start_with_robot(cfg, robot).await?;
+        let agent = rt.clone();
+        server
+            .state
+            .metrics
+            .add_source(Box::new(move || agent.render_metrics().unwrap_or_default()));
+        Ok((server, Some(rt)))
     } else if let Some(sock) = &args.agent_socket {
         let robot = Arc::new(RemoteRobot::new(
             configbot_agent::client::AgentClient::unix(sock),

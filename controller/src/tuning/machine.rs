@@ -572,10 +572,15 @@ fn baseline_done(
     let settings = Settings {
         seed: env.spec.tuning.seed,
         max_trials: env.spec.tuning.max_trials as usize + 1,
-        safety: env.spec.tuning.safety_floor.map(|f| SafetyFloor {
-            fraction_of_target: f,
-            beta: 2.0,
-        }),
+        safety: env
+            .spec
+            .tuning
+            .safety_floor
+            .filter(|f| baseline_is_safe(*f, defs, &rec.eval.constraints))
+            .map(|f| SafetyFloor {
+                fraction_of_target: f,
+                beta: 2.0,
+            }),
         candidates: 400,
         refine_steps: 15,
         ..Settings::default()
@@ -602,6 +607,21 @@ fn baseline_done(
         }
     }
     next_trial(run, env, defs, out)
+}
+
+/// Whether every core constraint of the baseline is on the safe side of the
+/// spec's safety floor. Safe exploration protects a robot that works; one
+/// already below the floor has nothing to protect (no config would count as
+/// safe and tuning could never start), so the run explores freely to restore
+/// the constraint as fast as it can.
+pub fn baseline_is_safe(floor: f64, defs: &[MetricDef], baseline: &[f64]) -> bool {
+    defs.iter().filter(|d| d.core).zip(baseline).all(|(d, v)| {
+        if d.at_least {
+            *v >= floor * d.target
+        } else {
+            *v <= d.target / floor
+        }
+    })
 }
 
 #[allow(clippy::too_many_arguments)]

@@ -722,3 +722,15 @@ fn baseline_is_the_config_last_applied() {
         "unset knobs at their upper bound"
     );
 }
+
+#[test]
+fn safe_exploration_is_off_when_the_baseline_is_below_the_floor() {
+    let st = stack();
+    let sp = spec(1.0, 10);
+    let defs = measure::metric_defs(&st.spec, &sp.spec);
+    let core = defs.iter().filter(|d| d.core).count();
+    assert!(core >= 1);
+    let target = defs.iter().find(|d| d.core).unwrap().target;
+    assert!(!baseline_is_safe(0.8, &defs, &vec![target * 0.5; core]));
+    assert!(baseline_is_safe(0.8, &defs, &vec![target * 0.9; core]));
+}

@@ -5,7 +5,7 @@
 //! non-core performance), [`machine`] (the run as one state enum and one
 //! transition function), [`monitor`] (constraint monitor, triggers),
 //! [`library`] (contexts and ConfigProfiles). IO at the edges: [`robot`] (the
-//! trait the lead implements for the node runtime), [`runner`] (one task per
+//! trait `crate::robot` implements for the node runtime), [`runner`] (one task per
 //! spec: drives the machine, persists every step, writes status and events),
 //! [`sim`] (a deterministic simulated robot on simulated time, for tests).
 

@@ -222,7 +222,7 @@ pub fn robot_stack(yaml: &str) -> RobotStack {
     let docs = configbot_manifests::load("test.yaml", yaml).unwrap_or_else(|e| panic!("{e}"));
     match &docs[0].manifest {
         Manifest::RobotStack(s) => s.clone(),
-        Manifest::PerformanceSpec(_) => panic!("not a RobotStack"),
+        _ => panic!("not a RobotStack"),
     }
 }
 
