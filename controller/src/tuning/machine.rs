@@ -24,7 +24,7 @@ use super::knobs::{self, KnobSpace};
 use super::library;
 use super::measure::{self, Evaluation, MetricDef};
 use super::monitor::{ConstraintMonitor, Trigger};
-use super::outcome::{list_or_none, observation, problem, profile_trials, remediate, unsat_reason};
+use super::outcome::{list_or_none, observation, problem, remediate, unsat_reason, verified};
 
 /// Satisfaction a verified config must reach.
 pub const SATISFIED: f64 = 0.99;
@@ -687,7 +687,12 @@ fn next_trial(run: &mut Run, env: &Env<'_>, defs: &[MetricDef], out: &mut Vec<Ou
 }
 
 /// Pick the best unrejected feasible trial to verify, or end Unsat with the safest config.
-fn finish(run: &mut Run, env: &Env<'_>, defs: &[MetricDef], out: &mut Vec<Output>) -> State {
+pub(crate) fn finish(
+    run: &mut Run,
+    env: &Env<'_>,
+    defs: &[MetricDef],
+    out: &mut Vec<Output>,
+) -> State {
     let best = run
         .trials
         .iter()
@@ -719,94 +724,6 @@ fn finish(run: &mut Run, env: &Env<'_>, defs: &[MetricDef], out: &mut Vec<Output
     out.push(warning("Unsat", reason.clone()));
     run.reason = Some(reason);
     State::UnsatApply { config }
-}
-
-fn verified(
-    run: &mut Run,
-    env: &Env<'_>,
-    defs: &[MetricDef],
-    candidate: Candidate,
-    config: ResourceConfig,
-    r: &MeasureReport,
-    out: &mut Vec<Output>,
-) -> State {
-    let sat = measure::satisfaction(defs, r);
-    if sat >= SATISFIED {
-        let eval = measure::evaluate(defs, r, env.spec.tuning.scalarization);
-        out.push(normal(
-            "Satisfied",
-            format!(
-                "config from {} holds: satisfaction {:.1} %, objective {}",
-                match &candidate {
-                    Candidate::Trial { index } => format!("trial {index}"),
-                    Candidate::Baseline => "the baseline".into(),
-                    Candidate::Library { profile } =>
-                        format!("library profile {}", profile.metadata.name),
-                },
-                sat * 100.0,
-                eval.objective
-                    .map_or("-".to_string(), |o| format!("{o:.3}"))
-            ),
-        ));
-        if let (Candidate::Trial { .. }, Some(ctx)) = (&candidate, &run.context) {
-            out.push(Output::SaveProfile(Box::new(library::profile(
-                env.namespace,
-                env.spec_name,
-                Some(library::spec_digest(env.spec)),
-                ctx,
-                &config,
-                sat,
-                eval.objective,
-                profile_trials(run, defs),
-            ))));
-        }
-        if !matches!(candidate, Candidate::Baseline) {
-            run.reason = None;
-        }
-        run.applied = Some(candidate);
-        run.monitor = ConstraintMonitor::default();
-        return State::Monitor {
-            satisfied: true,
-            config,
-        };
-    }
-    match candidate {
-        Candidate::Trial { index } => {
-            out.push(warning(
-                "VerificationFailed",
-                format!(
-                    "trial {index} held in only {:.1} % of the windows; trying the next best",
-                    sat * 100.0
-                ),
-            ));
-            run.rejected.push(index);
-            finish(run, env, defs, out)
-        }
-        Candidate::Baseline => {
-            if env.tuning_allowed {
-                let (config, reason) = unsat_reason(run, defs);
-                out.push(warning("Unsat", reason.clone()));
-                run.reason = Some(reason);
-                State::UnsatApply { config }
-            } else {
-                remediate(env, run.context.as_ref(), out)
-            }
-        }
-        Candidate::Library { .. } => {
-            let t = Trigger::LibraryConfigFailed { satisfaction: sat };
-            out.push(warning(t.reason(), t.message()));
-            if env.tuning_allowed {
-                // Relearn (fresh graph), warm-started from the profile's trials:
-                // Observe skips the library hit and hands the profile to Baseline.
-                State::Observe {
-                    trigger: t,
-                    skip_library: true,
-                }
-            } else {
-                remediate(env, run.context.as_ref(), out)
-            }
-        }
-    }
 }
 
 #[cfg(test)]

@@ -1,15 +1,20 @@
 //! Pure helpers around a run's outcome: the optimizer problem built from the
 //! knobs and metrics, trials as optimizer observations and as library trials,
-//! and the Unsat explanation (which constraint, the best value reached, what
+//! verification of a candidate config, remediation, and the Unsat explanation (which constraint, the best value reached, what
 //! to relax).
 
+use configbot_agent::measure::MeasureReport;
 use configbot_manifests::performance_spec::RemediationAction;
 use configbot_manifests::{ProfileContext, ProfileTrial, ResourceConfig};
 use configbot_optimizer::Observation;
 
 use super::knobs::KnobSpace;
-use super::machine::{Env, Output, Run, State, TrialRecord, warning};
-use super::measure::MetricDef;
+use super::library;
+use super::machine::{
+    Candidate, Env, Output, Run, SATISFIED, State, TrialRecord, finish, normal, warning,
+};
+use super::measure::{self, MetricDef};
+use super::monitor::{ConstraintMonitor, Trigger};
 
 pub fn problem(
     knobs: &KnobSpace,
@@ -182,4 +187,94 @@ pub fn remediate(env: &Env<'_>, ctx: Option<&ProfileContext>, out: &mut Vec<Outp
         ),
     ));
     State::RemediateStop { apps }
+}
+
+/// A verification measured: monitor the candidate, or try the next one.
+#[allow(clippy::too_many_arguments)]
+pub fn verified(
+    run: &mut Run,
+    env: &Env<'_>,
+    defs: &[MetricDef],
+    candidate: Candidate,
+    config: ResourceConfig,
+    r: &MeasureReport,
+    out: &mut Vec<Output>,
+) -> State {
+    let sat = measure::satisfaction(defs, r);
+    if sat >= SATISFIED {
+        let eval = measure::evaluate(defs, r, env.spec.tuning.scalarization);
+        out.push(normal(
+            "Satisfied",
+            format!(
+                "config from {} holds: satisfaction {:.1} %, objective {}",
+                match &candidate {
+                    Candidate::Trial { index } => format!("trial {index}"),
+                    Candidate::Baseline => "the baseline".into(),
+                    Candidate::Library { profile } =>
+                        format!("library profile {}", profile.metadata.name),
+                },
+                sat * 100.0,
+                eval.objective
+                    .map_or("-".to_string(), |o| format!("{o:.3}"))
+            ),
+        ));
+        if let (Candidate::Trial { .. }, Some(ctx)) = (&candidate, &run.context) {
+            out.push(Output::SaveProfile(Box::new(library::profile(
+                env.namespace,
+                env.spec_name,
+                Some(library::spec_digest(env.spec)),
+                ctx,
+                &config,
+                sat,
+                eval.objective,
+                profile_trials(run, defs),
+            ))));
+        }
+        if !matches!(candidate, Candidate::Baseline) {
+            run.reason = None;
+        }
+        run.applied = Some(candidate);
+        run.monitor = ConstraintMonitor::default();
+        return State::Monitor {
+            satisfied: true,
+            config,
+        };
+    }
+    match candidate {
+        Candidate::Trial { index } => {
+            out.push(warning(
+                "VerificationFailed",
+                format!(
+                    "trial {index} held in only {:.1} % of the windows; trying the next best",
+                    sat * 100.0
+                ),
+            ));
+            run.rejected.push(index);
+            finish(run, env, defs, out)
+        }
+        Candidate::Baseline => {
+            if env.tuning_allowed {
+                let (config, reason) = unsat_reason(run, defs);
+                out.push(warning("Unsat", reason.clone()));
+                run.reason = Some(reason);
+                State::UnsatApply { config }
+            } else {
+                remediate(env, run.context.as_ref(), out)
+            }
+        }
+        Candidate::Library { .. } => {
+            let t = Trigger::LibraryConfigFailed { satisfaction: sat };
+            out.push(warning(t.reason(), t.message()));
+            if env.tuning_allowed {
+                // Relearn (fresh graph), warm-started from the profile's trials:
+                // Observe skips the library hit and hands the profile to Baseline.
+                State::Observe {
+                    trigger: t,
+                    skip_library: true,
+                }
+            } else {
+                remediate(env, run.context.as_ref(), out)
+            }
+        }
+    }
 }
