@@ -246,14 +246,15 @@ spec:
     ))
     .await
     .unwrap();
-    eventually("/two restarted", T, || {
+    // The new process joins its cgroup before it execs, so wait for the exec too.
+    eventually("/two restarted as sleep 302", T, || {
         let p = cgroup_pids(&rt, "/two");
-        p.len() == 1 && p[0] != two_pid
+        p.len() == 1
+            && p[0] != two_pid
+            && std::fs::read_to_string(format!("/proc/{}/cmdline", p[0]))
+                .is_ok_and(|c| c.contains("302"))
     })
     .await;
-    let cmdline =
-        std::fs::read_to_string(format!("/proc/{}/cmdline", cgroup_pids(&rt, "/two")[0])).unwrap();
-    assert!(cmdline.contains("302"), "{cmdline:?}");
     // /one removed: stopped and its cgroup gone.
     let only_two = robot_stack(
         r#"
