@@ -20,6 +20,7 @@ pub mod problem;
 pub mod problems;
 pub mod rng;
 pub mod space;
+pub mod trust;
 
 pub use error::{Error, Result};
 pub use optimizer::{Best, Optimizer, Outcome, Proposal, SafetyFloor, Settings, StopReason, Unsat};
