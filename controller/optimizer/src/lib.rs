@@ -19,6 +19,7 @@ pub mod optimizer;
 pub mod problem;
 pub mod problems;
 pub mod rng;
+mod safe_region;
 pub mod space;
 pub mod trust;
 

@@ -4,6 +4,13 @@
 //! probability of feasibility alone while no feasible trial is known.
 //!
 //! Choices worth knowing:
+//! - **Objectives** are modelled one GP each and combined by the known
+//!   scalarisation when scoring (see [`crate::models`]).
+//! - **Trust region** ([`TrustRegionSettings`], on by default from 6 knobs):
+//!   after the initial design, candidates and acquisition refinement stay in
+//!   a TuRBO-like box around the best trial that shrinks on failures and grows
+//!   on successes (see [`crate::trust`]); UNSAT evidence still scores
+//!   candidates over the whole space.
 //! - **Safe exploration** ([`SafetyFloor`]): every proposal (initial design
 //!   included, except the current config itself) must have each core
 //!   constraint's confidence bound on the safe side of the floor, and lies in a
@@ -45,65 +52,9 @@ pub use crate::models::SafetyFloor;
 use crate::models::{FitPlan, Models, Score};
 use crate::problem::{Observation, Problem, Sense};
 use crate::rng::Rng;
+use crate::safe_region::{SLOPE_FACTOR, SafeRegion};
 use crate::trust::TrustRegion;
 pub use crate::trust::TrustRegionSettings;
-
-/// Safety factor on the steepest slope seen (safe mode).
-const SLOPE_FACTOR: f64 = 3.0;
-
-/// Safe mode's second guard besides the models' confidence bounds: a config
-/// must lie within `reach` (L∞, unit cube) of a trial that measured safe and,
-/// for every constraint, close enough to some such trial that even the
-/// steepest slope seen so far (tripled) could not take it below the floor.
-#[derive(Debug, Default)]
-struct SafeRegion {
-    active: bool,
-    reach: f64,
-    /// Safe trials (unit cube) with each constraint's margin above its floor.
-    points: Vec<(Vec<f64>, Vec<f64>)>,
-    slopes: Vec<f64>,
-}
-
-impl SafeRegion {
-    /// L∞ radius around safe trial `p` that the slopes and `reach` allow.
-    fn radius(&self, p: &[f64]) -> f64 {
-        let margins = self
-            .points
-            .iter()
-            .find(|(q, _)| q.as_slice() == p)
-            .map(|(_, m)| m.as_slice());
-        let mut r = self.reach;
-        if let Some(m) = margins {
-            for (mj, &l) in m.iter().zip(&self.slopes) {
-                if l > 0.0 {
-                    r = r.min(mj / l);
-                }
-            }
-        }
-        r.max(0.0)
-    }
-
-    fn allows(&self, u: &[f64]) -> bool {
-        if !self.active {
-            return true;
-        }
-        let dist = |p: &[f64]| {
-            p.iter()
-                .zip(u)
-                .map(|(a, b)| (a - b).abs())
-                .fold(0.0, f64::max)
-        };
-        let near = self
-            .points
-            .iter()
-            .any(|(p, _)| dist(p) <= self.reach + 1e-12);
-        near && self
-            .slopes
-            .iter()
-            .enumerate()
-            .all(|(j, &l)| self.points.iter().any(|(p, m)| m[j] >= l * dist(p)))
-    }
-}
 
 /// Tuning knobs of the optimizer itself.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
