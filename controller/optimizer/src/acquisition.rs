@@ -108,6 +108,24 @@ pub fn log_expected_improvement(mean: f64, sd: f64, best: f64) -> f64 {
     sd.ln() + h
 }
 
+/// Mean and standard deviation of `min(X, Y)` for independent normals
+/// `X ~ N(mx, sx^2)`, `Y ~ N(my, sy^2)`: exact first two moments (Clark
+/// 1961), used to moment-match the min by a normal. A constant is `sd = 0`.
+pub fn normal_min_moments(x: (f64, f64), y: (f64, f64)) -> (f64, f64) {
+    let ((mx, sx), (my, sy)) = (x, y);
+    let theta = (sx * sx + sy * sy).sqrt();
+    if theta <= 1e-12 {
+        return (mx.min(my), 0.0);
+    }
+    // min(X, Y) = -max(-X, -Y); Clark's formulas for the max of (-X, -Y).
+    let (a1, a2) = (-mx, -my);
+    let alpha = (a1 - a2) / theta;
+    let (p, q, d) = (norm_cdf(alpha), norm_cdf(-alpha), norm_pdf(alpha));
+    let m1 = a1 * p + a2 * q + theta * d;
+    let m2 = (a1 * a1 + sx * sx) * p + (a2 * a2 + sy * sy) * q + (a1 + a2) * theta * d;
+    (-m1, (m2 - m1 * m1).max(0.0).sqrt())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -166,6 +184,32 @@ mod tests {
         assert!((constrained_ei(Some(ei), &[p, q]) - ei * p * q).abs() < 1e-15);
         assert!((constrained_ei(None, &[p, q]) - p * q).abs() < 1e-15);
         assert_eq!(constrained_ei(Some(ei), &[]), ei);
+    }
+
+    #[test]
+    fn min_of_normals_matches_monte_carlo_and_limits() {
+        // Equal N(0, 1): E[min] = -1/sqrt(pi), Var = 1 - 1/pi.
+        let (m, s) = normal_min_moments((0.0, 1.0), (0.0, 1.0));
+        assert!((m + 1.0 / PI.sqrt()).abs() < 1e-12, "{m}");
+        assert!((s - (1.0 - 1.0 / PI).sqrt()).abs() < 1e-12, "{s}");
+        // Far apart: the lower one.
+        let (m, s) = normal_min_moments((0.0, 1.0), (50.0, 2.0));
+        assert!(m.abs() < 1e-9 && (s - 1.0).abs() < 1e-9);
+        // Against a constant cap: E[min(X, c)] = mu - sd * (phi(z) + z (1 - Phi(z))) with z = (c - mu)/sd... check by sampling.
+        let mut rng = crate::rng::Rng::seed_from_u64(1);
+        let (n, mut s1, mut s2) = (200_000, 0.0, 0.0);
+        for _ in 0..n {
+            let v = (0.8 + 0.3 * rng.normal()).min(1.0);
+            s1 += v;
+            s2 += v * v;
+        }
+        let mean = s1 / n as f64;
+        let sd = (s2 / n as f64 - mean * mean).sqrt();
+        let (m, s) = normal_min_moments((0.8, 0.3), (1.0, 0.0));
+        assert!(
+            (m - mean).abs() < 3e-3 && (s - sd).abs() < 3e-3,
+            "{m} {s} vs {mean} {sd}"
+        );
     }
 
     #[test]

@@ -19,7 +19,9 @@ pub mod optimizer;
 pub mod problem;
 pub mod problems;
 pub mod rng;
+mod safe_region;
 pub mod space;
+pub mod trust;
 
 pub use error::{Error, Result};
 pub use optimizer::{Best, Optimizer, Outcome, Proposal, SafetyFloor, Settings, StopReason, Unsat};

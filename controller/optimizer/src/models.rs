@@ -1,13 +1,23 @@
-//! The surrogates behind one `ask`: a GP for the scalarised objective and one
+//! The surrogates behind one `ask`: a GP per normalised objective and one
 //! per constraint, and how candidates are scored with them (constrained EI,
 //! probability of feasibility, safety bounds).
+//!
+//! Objectives are modelled one by one and combined by the known
+//! scalarisation when scoring (composite BO): the max-min of several objectives
+//! has a ridge where they cross that one GP on the scalar models badly, while
+//! each objective alone is smooth. The scalar's distribution is moment-matched
+//! by a normal (min of normals by Clark's formulas, capped objectives clipped
+//! at 1, weighted sums exactly), and EI is taken on that normal. With one
+//! uncapped objective this is exactly a GP on the scalar.
 
 use serde::{Deserialize, Serialize};
 
-use crate::acquisition::{log_expected_improvement, log_norm_cdf, probability_of_feasibility};
+use crate::acquisition::{
+    log_expected_improvement, log_norm_cdf, normal_min_moments, probability_of_feasibility,
+};
 use crate::error::Result;
 use crate::gp::{FitOptions, Gp, Hyper};
-use crate::problem::{Constraint, Observation, Problem, Sense};
+use crate::problem::{Constraint, Observation, Problem, Scalarization, Sense};
 use crate::rng::Rng;
 
 /// Safe exploration: never propose a config whose predicted core-constraint
@@ -57,7 +67,8 @@ pub(crate) struct Score {
 /// Fitted surrogates.
 #[derive(Debug)]
 pub(crate) struct Models {
-    objective: Option<Gp>,
+    /// One per objective (normalised values); empty before any complete trial.
+    objectives: Vec<Gp>,
     constraints: Vec<Gp>,
 }
 
@@ -85,7 +96,8 @@ impl Models {
         rng: &mut Rng,
     ) -> Result<Self> {
         let m = problem.constraints.len();
-        hypers.resize(m + 1, None);
+        let k = problem.objectives.len();
+        hypers.resize(k + m, None);
         let mut opts = plan.fit.clone();
         if !plan.full {
             // Between full refits: screen the previous optimum and the prior centre, one L-BFGS run.
@@ -93,20 +105,22 @@ impl Models {
             opts.local_runs = 1;
             opts.max_iter = opts.max_iter.min(12);
         }
-        // Objective: complete trials only (a censored trial's objective is unknown).
-        let (ux, y): (Vec<Vec<f64>>, Vec<f64>) = u
-            .iter()
-            .zip(data)
-            .filter(|(_, o)| !o.censored)
-            .map(|(u, o)| (u.clone(), problem.scalarize(&o.objectives)))
-            .unzip();
-        let objective = if ux.is_empty() {
-            None
-        } else {
-            let gp = Gp::fit(&ux, &y, &opts, hypers[0].as_ref(), rng)?;
-            hypers[0] = Some(gp.hyper().clone());
-            Some(gp)
-        };
+        // Objectives: complete trials only (a censored trial's objective is unknown).
+        let complete: Vec<(&Vec<f64>, &&Observation)> =
+            u.iter().zip(data).filter(|(_, o)| !o.censored).collect();
+        let ux: Vec<Vec<f64>> = complete.iter().map(|(u, _)| (*u).clone()).collect();
+        let mut objectives = Vec::with_capacity(k);
+        if !ux.is_empty() {
+            for (i, obj) in problem.objectives.iter().enumerate() {
+                let y: Vec<f64> = complete
+                    .iter()
+                    .map(|(_, o)| obj.normalise(o.objectives[i]))
+                    .collect();
+                let gp = Gp::fit(&ux, &y, &opts, hypers[i].as_ref(), rng)?;
+                hypers[i] = Some(gp.hyper().clone());
+                objectives.push(gp);
+            }
+        }
         let mut constraints = Vec::with_capacity(m);
         for (j, c) in problem.constraints.iter().enumerate() {
             // Constraints: every trial; a censored trial contributes its partial value.
@@ -117,12 +131,12 @@ impl Models {
             if plan.constraint_max_lengthscale.is_some() {
                 copts.min_signal_var = Some(1.0);
             }
-            let gp = Gp::fit(u, &y, &copts, hypers[j + 1].as_ref(), rng)?;
-            hypers[j + 1] = Some(gp.hyper().clone());
+            let gp = Gp::fit(u, &y, &copts, hypers[k + j].as_ref(), rng)?;
+            hypers[k + j] = Some(gp.hyper().clone());
             constraints.push(gp);
         }
         Ok(Self {
-            objective,
+            objectives,
             constraints,
         })
     }
@@ -135,8 +149,19 @@ impl Models {
         incumbent: Option<f64>,
         safety: Option<&SafetyFloor>,
     ) -> Vec<Score> {
-        let obj = match (&self.objective, incumbent) {
-            (Some(gp), Some(_)) => Some(gp.predict_many(us)),
+        let obj = match incumbent {
+            Some(_) if !self.objectives.is_empty() => {
+                let preds: Vec<Vec<(f64, f64)>> = self
+                    .objectives
+                    .iter()
+                    .map(|gp| gp.predict_many(us))
+                    .collect();
+                Some(
+                    (0..us.len())
+                        .map(|i| scalar_prediction(problem, preds.iter().map(|p| p[i])))
+                        .collect::<Vec<_>>(),
+                )
+            }
             _ => None,
         };
         let cons: Vec<Vec<(f64, f64)>> = self
@@ -190,6 +215,32 @@ impl Models {
     /// Predicted mean and sd of each constraint at a point.
     pub fn constraint_predictions(&self, u: &[f64]) -> Vec<(f64, f64)> {
         self.constraints.iter().map(|gp| gp.predict(u)).collect()
+    }
+}
+
+/// Normal approximation of the scalarised objective from the objectives'
+/// predictions (normalised units).
+fn scalar_prediction(problem: &Problem, preds: impl Iterator<Item = (f64, f64)>) -> (f64, f64) {
+    // A capped objective's normalised value never exceeds 1.
+    let clipped = problem.objectives.iter().zip(preds).map(|(o, p)| {
+        if o.cap.is_some() {
+            normal_min_moments(p, (1.0, 0.0))
+        } else {
+            p
+        }
+    });
+    match problem.scalarization {
+        Scalarization::MaxMin => clipped.reduce(normal_min_moments).unwrap_or((0.0, 0.0)),
+        Scalarization::Weighted => {
+            let wsum: f64 = problem.objectives.iter().map(|o| o.weight).sum();
+            let (mut m, mut v) = (0.0, 0.0);
+            for (o, (mi, si)) in problem.objectives.iter().zip(clipped) {
+                let w = o.weight / wsum;
+                m += w * mi;
+                v += w * w * si * si;
+            }
+            (m, v.sqrt())
+        }
     }
 }
 

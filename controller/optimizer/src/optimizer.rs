@@ -4,6 +4,15 @@
 //! probability of feasibility alone while no feasible trial is known.
 //!
 //! Choices worth knowing:
+//! - **Objectives** are modelled one GP each and combined by the known
+//!   scalarisation when scoring (see [`crate::models`]).
+//! - **Trust region** ([`TrustRegionSettings`], off by default): after the
+//!   initial design, candidates and acquisition refinement stay in a
+//!   TuRBO-like box around the best trial that shrinks on failures and grows
+//!   on successes (see [`crate::trust`]); UNSAT evidence still scores
+//!   candidates over the whole space. Off because on the 13-knob robot model
+//!   it locked runs into the basin of their first good trial (3 of 8 seeds
+//!   within 5 % in 200 trials, vs 5 of 8 without it).
 //! - **Safe exploration** ([`SafetyFloor`]): every proposal (initial design
 //!   included, except the current config itself) must have each core
 //!   constraint's confidence bound on the safe side of the floor, and lies in a
@@ -45,63 +54,9 @@ pub use crate::models::SafetyFloor;
 use crate::models::{FitPlan, Models, Score};
 use crate::problem::{Observation, Problem, Sense};
 use crate::rng::Rng;
-
-/// Safety factor on the steepest slope seen (safe mode).
-const SLOPE_FACTOR: f64 = 3.0;
-
-/// Safe mode's second guard besides the models' confidence bounds: a config
-/// must lie within `reach` (L∞, unit cube) of a trial that measured safe and,
-/// for every constraint, close enough to some such trial that even the
-/// steepest slope seen so far (tripled) could not take it below the floor.
-#[derive(Debug, Default)]
-struct SafeRegion {
-    active: bool,
-    reach: f64,
-    /// Safe trials (unit cube) with each constraint's margin above its floor.
-    points: Vec<(Vec<f64>, Vec<f64>)>,
-    slopes: Vec<f64>,
-}
-
-impl SafeRegion {
-    /// L∞ radius around safe trial `p` that the slopes and `reach` allow.
-    fn radius(&self, p: &[f64]) -> f64 {
-        let margins = self
-            .points
-            .iter()
-            .find(|(q, _)| q.as_slice() == p)
-            .map(|(_, m)| m.as_slice());
-        let mut r = self.reach;
-        if let Some(m) = margins {
-            for (mj, &l) in m.iter().zip(&self.slopes) {
-                if l > 0.0 {
-                    r = r.min(mj / l);
-                }
-            }
-        }
-        r.max(0.0)
-    }
-
-    fn allows(&self, u: &[f64]) -> bool {
-        if !self.active {
-            return true;
-        }
-        let dist = |p: &[f64]| {
-            p.iter()
-                .zip(u)
-                .map(|(a, b)| (a - b).abs())
-                .fold(0.0, f64::max)
-        };
-        let near = self
-            .points
-            .iter()
-            .any(|(p, _)| dist(p) <= self.reach + 1e-12);
-        near && self
-            .slopes
-            .iter()
-            .enumerate()
-            .all(|(j, &l)| self.points.iter().any(|(p, m)| m[j] >= l * dist(p)))
-    }
-}
+use crate::safe_region::{SLOPE_FACTOR, SafeRegion};
+use crate::trust::TrustRegion;
+pub use crate::trust::TrustRegionSettings;
 
 /// Tuning knobs of the optimizer itself.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -140,6 +95,10 @@ pub struct Settings {
     /// plateaus in the data (a rate pinned at its publish rate) do not make the
     /// model confident about configs it has not seen.
     pub safe_max_lengthscale: f64,
+    /// TuRBO-like trust region around the best trial for problems with many
+    /// knobs (see [`crate::trust`]); `None` (the default) searches the whole space.
+    #[serde(default)]
+    pub trust_region: Option<TrustRegionSettings>,
 }
 
 impl Default for Settings {
@@ -161,6 +120,7 @@ impl Default for Settings {
             trust_growth: 1.1,
             safe_reach: 0.15,
             safe_max_lengthscale: 0.3,
+            trust_region: None,
         }
     }
 }
@@ -303,7 +263,7 @@ impl Optimizer {
         }
         design.reverse(); // pop() from the back
         Ok(Self {
-            hypers: vec![None; problem.constraints.len() + 1],
+            hypers: vec![None; problem.objectives.len() + problem.constraints.len()],
             problem,
             settings,
             rng,
@@ -459,6 +419,55 @@ impl Optimizer {
         }
     }
 
+    /// The trust region (many knobs only), replayed from the trials.
+    fn trust_region(&self) -> Option<TrustRegion> {
+        let settings = self.settings.trust_region.as_ref()?;
+        let units: Vec<Vec<f64>> = self
+            .observations
+            .iter()
+            .map(|o| self.problem.space.to_unit(&o.x))
+            .collect();
+        // The objective models' lengthscales, averaged over objectives.
+        let fitted: Vec<&Hyper> = self.hypers
+            [..self.problem.objectives.len().min(self.hypers.len())]
+            .iter()
+            .flatten()
+            .collect();
+        let log_ls = fitted.first().map(|f| {
+            (0..f.log_ls.len())
+                .map(|d| fitted.iter().map(|h| h.log_ls[d]).sum::<f64>() / fitted.len() as f64)
+                .collect::<Vec<f64>>()
+        });
+        TrustRegion::replay(
+            settings,
+            &self.problem,
+            &self.observations,
+            &units,
+            self.settings.initial_design_size,
+            log_ls.as_deref(),
+            self.settings.safety.is_none(),
+        )
+    }
+
+    /// Box proposals come from: the safe-mode trust region around the current
+    /// config, intersected with the trust region around the best trial.
+    fn bounds(&self, tr: Option<&TrustRegion>) -> (Vec<f64>, Vec<f64>) {
+        let half = self.trust_half_width();
+        let mut lo: Vec<f64> = self.current.iter().map(|c| (c - half).max(0.0)).collect();
+        let mut hi: Vec<f64> = self.current.iter().map(|c| (c + half).min(1.0)).collect();
+        if let Some(tr) = tr {
+            for k in 0..lo.len() {
+                let (l, h) = (lo[k].max(tr.lo[k]), hi[k].min(tr.hi[k]));
+                // An empty intersection falls back to the safe-mode box.
+                if l <= h {
+                    lo[k] = l;
+                    hi[k] = h;
+                }
+            }
+        }
+        (lo, hi)
+    }
+
     fn fit_models(&mut self) -> Result<Models> {
         let data: Vec<&Observation> = self.prior.iter().chain(&self.observations).collect();
         let u: Vec<Vec<f64>> = data
@@ -503,7 +512,7 @@ impl Optimizer {
             if self.incumbent().is_none() && self.settings.max_trials > 0 {
                 // Gather the model's evidence for the UNSAT report.
                 let models = self.fit_models()?;
-                let cands = self.candidates(None);
+                let cands = self.candidates(None, false);
                 let scores = models.score(&self.problem, &cands, None, None);
                 self.last_p_any_feasible = Some(scores.iter().map(|s| s.pof).fold(0.0, f64::max));
             }
@@ -540,13 +549,27 @@ impl Optimizer {
         let Some(models) = models else {
             return Ok(Proposal::Stop(StopReason::NoSafeCandidate));
         };
+        if self.trust_region().is_some_and(|t| t.restarting) {
+            // A fresh trust-region run starts from random trials (never in safe mode).
+            let u: Vec<f64> = (0..space.dim()).map(|_| self.rng.uniform()).collect();
+            return Ok(Proposal::Try(space.from_unit(&space.snap_unit(&u))));
+        }
         let incumbent = self.incumbent().map(|(_, v)| v);
-        let cands = self.candidates(incumbent);
+        let cands = self.candidates(incumbent, true);
         let safety = self.settings.safety.clone();
         let scores = models.score(&self.problem, &cands, incumbent, safety.as_ref());
-        let p_any = scores.iter().map(|s| s.pof).fold(0.0, f64::max);
-        self.last_p_any_feasible = Some(p_any);
+        let mut p_any = scores.iter().map(|s| s.pof).fold(0.0, f64::max);
         let n = self.observations.len();
+        if incumbent.is_none()
+            && n >= self.settings.min_trials_before_unsat
+            && self.trust_region().is_some()
+        {
+            // The trust region is local; UNSAT evidence must look everywhere.
+            let global = self.candidates(None, false);
+            let g = models.score(&self.problem, &global, None, safety.as_ref());
+            p_any = g.iter().map(|s| s.pof).fold(p_any, f64::max);
+        }
+        self.last_p_any_feasible = Some(p_any);
         if incumbent.is_none()
             && n >= self.settings.min_trials_before_unsat
             && let Some(t) = self.settings.unsat_when_pof_below
@@ -587,12 +610,14 @@ impl Optimizer {
     }
 
     /// Random candidates in the trust region plus local ones around the best trials.
-    fn candidates(&mut self, incumbent: Option<f64>) -> Vec<Vec<f64>> {
+    /// With `local`, inside the trust region around the best trial (if any).
+    fn candidates(&mut self, incumbent: Option<f64>, local: bool) -> Vec<Vec<f64>> {
         let dim = self.problem.space.dim();
         let half = self.trust_half_width();
-        let centre = self.current.clone();
-        let lo: Vec<f64> = centre.iter().map(|c| (c - half).max(0.0)).collect();
-        let hi: Vec<f64> = centre.iter().map(|c| (c + half).min(1.0)).collect();
+        let tr = if local { self.trust_region() } else { None };
+        let (lo, hi) = self.bounds(tr.as_ref());
+        // Spread of the local candidates: the trust region's half side if any.
+        let local_r = tr.as_ref().map_or(half.max(0.1), |t| 0.5 * t.length);
         let mut out = Vec::with_capacity(self.settings.candidates + 200);
         let region = self.safe_region();
         for _ in 0..self.settings.candidates {
@@ -636,7 +661,7 @@ impl Optimizer {
             let r = if region.active {
                 region.radius(a)
             } else {
-                half.max(0.1)
+                local_r
             };
             for j in 0..50 {
                 let sigma = if j % 2 == 0 { 0.1 } else { 0.5 } * r;
@@ -654,7 +679,7 @@ impl Optimizer {
             let r = if region.active {
                 region.radius(a)
             } else {
-                half.max(0.1)
+                local_r
             };
             let p = (3.0 / dim as f64).min(1.0);
             for j in 0..200 {
@@ -687,10 +712,13 @@ impl Optimizer {
         incumbent: Option<f64>,
     ) -> (Vec<f64>, Score) {
         let half = self.trust_half_width();
-        let lo: Vec<f64> = self.current.iter().map(|c| (c - half).max(0.0)).collect();
-        let hi: Vec<f64> = self.current.iter().map(|c| (c + half).min(1.0)).collect();
+        let tr = self.trust_region();
+        let (lo, hi) = self.bounds(tr.as_ref());
         let (mut x, mut s) = (start, score);
         let mut step = 0.05 * half.max(0.1);
+        if let Some(t) = &tr {
+            step = step.min(0.1 * t.length);
+        }
         let safety = self.settings.safety.clone();
         let region = self.safe_region();
         for _ in 0..self.settings.refine_steps {

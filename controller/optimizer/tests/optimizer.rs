@@ -114,13 +114,22 @@ fn infeasible_problem_ends_in_unsat_with_evidence() {
 
 #[test]
 fn resumed_optimizer_proposes_exactly_what_the_uninterrupted_one_does() {
-    for (name, k) in [("gramacy", 10), ("robot", 12)] {
+    // The robot twice: the second time with the (history-replayed) trust region on.
+    for (name, k, tr) in [
+        ("gramacy", 10, false),
+        ("robot", 12, false),
+        ("robot", 12, true),
+    ] {
         let p = problem(name);
         let n = 16;
-        let mut a = Optimizer::new(p.problem.clone(), small(7, n), &p.current).unwrap();
+        let settings = Settings {
+            trust_region: tr.then(configbot_optimizer::trust::TrustRegionSettings::default),
+            ..small(7, n)
+        };
+        let mut a = Optimizer::new(p.problem.clone(), settings.clone(), &p.current).unwrap();
         let full = drive(&mut a, &p, n);
 
-        let mut b = Optimizer::new(p.problem.clone(), small(7, n), &p.current).unwrap();
+        let mut b = Optimizer::new(p.problem.clone(), settings, &p.current).unwrap();
         let mut resumed = drive(&mut b, &p, k);
         let pending = b.ask().unwrap(); // a proposal in flight survives the restart too
         let json = b.to_json().unwrap();

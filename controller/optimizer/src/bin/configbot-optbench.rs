@@ -390,8 +390,8 @@ fn full(args: &[String]) -> Result<()> {
         "median evaluations to reach within 5% of the best-known feasible value ({seeds} seeds)"
     );
     println!(
-        "{:<16} {:>6} {:>12} {:>12} {:>12} {:>14} {:>10}",
-        "problem", "dims", "bo", "random", "sobol", "random/bo", "bo reached"
+        "{:<16} {:>6} {:>12} {:>12} {:>12} {:>14} {:>14} {:>10}",
+        "problem", "dims", "bo", "random", "sobol", "random/bo", "sobol/bo", "bo reached"
     );
     let names: &[&str] = if args.iter().any(|a| a == "--skip-compare") {
         &[]
@@ -422,23 +422,30 @@ fn full(args: &[String]) -> Result<()> {
         let (mb, rb) = median_evals(&bo, bo_budget);
         let (mr, _) = median_evals(&rnd, baseline_budget);
         let (ms, _) = median_evals(&sob, baseline_budget);
-        let ratio = if mb > bo_budget as f64 {
-            "n/a".to_owned()
-        } else {
-            format!(
-                "{}{:.1}x",
-                if mr > baseline_budget as f64 { ">" } else { "" },
-                mr / mb
-            )
+        let ratio = |base: f64| {
+            if mb > bo_budget as f64 {
+                "n/a".to_owned()
+            } else {
+                format!(
+                    "{}{:.1}x",
+                    if base > baseline_budget as f64 {
+                        ">"
+                    } else {
+                        ""
+                    },
+                    base / mb
+                )
+            }
         };
         println!(
-            "{:<16} {:>6} {:>12} {:>12} {:>12} {:>14} {:>7}/{}",
+            "{:<16} {:>6} {:>12} {:>12} {:>12} {:>14} {:>14} {:>7}/{}",
             name,
             p.problem.space.dim(),
             fmt_median(mb, bo_budget),
             fmt_median(mr, baseline_budget),
             fmt_median(ms, baseline_budget),
-            ratio,
+            ratio(mr),
+            ratio(ms),
             rb,
             seeds
         );
