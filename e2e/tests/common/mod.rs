@@ -659,3 +659,27 @@ pub fn trial_table(o: &Value) -> String {
         .collect::<Vec<_>>()
         .join("\n")
 }
+
+/// `cpu.cfs_quota_us` of a node's cgroup (-1: no limit), if it exists.
+pub fn cpu_quota_us(root: &str, node: &str) -> Option<i64> {
+    let b = v1_backend(root)?;
+    let n = configbot_cgroups::NodeName::new(node).ok()?;
+    std::fs::read_to_string(b.node_path(&n).join("cpu.cfs_quota_us"))
+        .ok()?
+        .trim()
+        .parse()
+        .ok()
+}
+
+/// Whether the node cgroups' quotas are those of `config` (a ResourceConfig
+/// as JSON: `cpu` in CPUs per node, `cpuPeriodMicros`), within 1 µs.
+pub fn quotas_match(root: &str, config: &Value) -> bool {
+    let period = config["cpuPeriodMicros"].as_f64().unwrap_or(100_000.0);
+    config["cpu"].as_object().is_some_and(|m| {
+        !m.is_empty()
+            && m.iter().all(|(node, cpus)| {
+                let want = (cpus.as_f64().unwrap_or(-1.0) * period).round() as i64;
+                cpu_quota_us(root, node).is_some_and(|q| (q - want).abs() <= 1)
+            })
+    })
+}
