@@ -32,8 +32,8 @@ fn outcome(o: &serde_json::Value) -> bool {
 
 #[test]
 fn new_app_is_detected_and_known_context_reapplies_fast() {
-    let t0 = Instant::now();
     let robot = Robot::start();
+    let t0 = Instant::now();
     let name = "contexts";
     let extra = app(
         "extra",

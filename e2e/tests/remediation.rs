@@ -11,8 +11,8 @@ use common::{HOG_STACK_NODES, HOGS, Robot, hog_stack, node_pids, phase};
 
 #[test]
 fn remediation_stops_the_non_core_app() {
-    let t0 = Instant::now();
     let robot = Robot::start();
+    let t0 = Instant::now();
     let name = "remedied";
     let yaml = hog_stack(name, 6, 36.0).replace("tuning: {", "tuning: {allowed: false, ");
     let (stack, spec) = yaml.split_once("---\n").expect("two documents");
@@ -81,6 +81,113 @@ fn remediation_stops_the_non_core_app() {
         base["satisfaction"].as_f64().unwrap_or(0.0) * 100.0,
         sat * 100.0,
         stopped_at.elapsed().as_secs_f64(),
+        t0.elapsed().as_secs_f64()
+    );
+}
+
+/// The task executive's way: the annotation `configbot.dev/tuning-allowed:
+/// "false"` pauses tuning (remediation stops the hogs); removing it undoes
+/// the remediation (an event, the hogs run again) and queues the relearning.
+#[test]
+fn remediation_is_undone_when_the_annotation_allows_tuning() {
+    let robot = Robot::start();
+    let t0 = Instant::now();
+    let name = "paused";
+    let yaml = hog_stack(name, 6, 36.0);
+    let (stack, spec) = yaml.split_once("---\n").expect("two documents");
+    let paused = spec.replace(
+        &format!("metadata:\n  name: {name}\n"),
+        &format!(
+            "metadata:\n  name: {name}\n  annotations:\n    configbot.dev/tuning-allowed: \"false\"\n"
+        ),
+    );
+    assert_ne!(paused, spec);
+    robot.apply(stack);
+    robot.wait_nodes(&HOG_STACK_NODES);
+    robot.apply(&paused);
+    robot.wait_event(name, "Remediated", Duration::from_secs(30), |_| true);
+    let deadline = Instant::now() + Duration::from_secs(15);
+    while HOGS.iter().any(|h| !node_pids(&robot.root, h).is_empty()) {
+        assert!(
+            Instant::now() < deadline,
+            "hogs still running\n{}",
+            robot.event_log(name)
+        );
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    robot.wait_for("pspec", name, Duration::from_secs(10), "Remediating", |o| {
+        phase(o) == "Remediating"
+    });
+
+    // The task executive allows tuning again.
+    robot.apply(spec);
+    let (ev, _) = robot.wait_event(name, "RemediationUndone", Duration::from_secs(20), |_| true);
+    let deadline = Instant::now() + Duration::from_secs(20);
+    while HOGS.iter().any(|h| node_pids(&robot.root, h).is_empty()) {
+        assert!(
+            Instant::now() < deadline,
+            "hogs not restarted\n{}",
+            robot.event_log(name)
+        );
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    // ... and the run relearns.
+    robot.wait_for("pspec", name, Duration::from_secs(20), "relearning", |o| {
+        matches!(phase(o), "Baseline" | "Tuning")
+    });
+    eprintln!(
+        "e2e remediation undo: {}; {:.0} s",
+        ev["message"].as_str().unwrap_or(""),
+        t0.elapsed().as_secs_f64()
+    );
+}
+
+/// The same through the spec field: `tuning.allowed` set back to true while
+/// remediating should restart the stopped app too.
+///
+/// BUG (controller/src/tuning/runner.rs, `iterate`): a new spec generation
+/// replaces the run with `Run::new(.., SpecChanged)`, which forgets that the
+/// old run was `Remediating { apps }`: no `RemediationUndone`, the hogs stay
+/// stopped for good, and the new run's baseline (0 knobs, the hogs are not
+/// in the graph) is declared Satisfied → Monitoring.
+#[test]
+#[ignore = "bug in the tuning loop: a spec change while remediating never restarts the stopped apps (see doc comment)"]
+fn remediation_is_undone_when_the_spec_field_allows_tuning() {
+    let robot = Robot::start();
+    let t0 = Instant::now();
+    let name = "fieldpaused";
+    let yaml = hog_stack(name, 6, 36.0);
+    let (stack, spec) = yaml.split_once("---\n").expect("two documents");
+    let paused = spec.replace("tuning: {", "tuning: {allowed: false, ");
+    robot.apply(stack);
+    robot.wait_nodes(&HOG_STACK_NODES);
+    robot.apply(&paused);
+    robot.wait_event(name, "Remediated", Duration::from_secs(30), |_| true);
+    let deadline = Instant::now() + Duration::from_secs(15);
+    while HOGS.iter().any(|h| !node_pids(&robot.root, h).is_empty()) {
+        assert!(
+            Instant::now() < deadline,
+            "hogs still running\n{}",
+            robot.event_log(name)
+        );
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    robot.apply(spec);
+    let deadline = Instant::now() + Duration::from_secs(30);
+    while HOGS.iter().any(|h| node_pids(&robot.root, h).is_empty()) {
+        assert!(
+            Instant::now() < deadline,
+            "hogs not restarted 30 s after tuning.allowed became true (phase {})\n{}",
+            robot
+                .get("pspec", name)
+                .map(|o| phase(&o).to_string())
+                .unwrap_or_default(),
+            robot.event_log(name)
+        );
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    eprintln!(
+        "e2e remediation field undo: hogs back; {:.0} s",
         t0.elapsed().as_secs_f64()
     );
 }

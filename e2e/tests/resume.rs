@@ -12,8 +12,8 @@ use common::{HOG_STACK_NODES, Robot, hog_stack, phase, trial_history};
 
 #[test]
 fn kill_9_mid_tuning_resumes_without_repeating_trials() {
-    let t0 = Instant::now();
     let mut robot = Robot::start();
+    let t0 = Instant::now();
     let name = "resumed";
     let max_trials = 6;
     let yaml = hog_stack(name, max_trials, 36.0);

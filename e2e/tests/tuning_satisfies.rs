@@ -14,8 +14,8 @@ use common::{HOG_STACK_NODES, Robot, hog_stack, phase, trial_history, trial_tabl
 
 #[test]
 fn tuning_satisfies_a_violating_stack() {
-    let t0 = Instant::now();
     let robot = Robot::start();
+    let t0 = Instant::now();
     let name = "hogged";
     let yaml = hog_stack(name, 6, 36.0);
     // The stack first, so that every node is in the graph when the run observes it.

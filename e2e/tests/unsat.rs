@@ -10,8 +10,8 @@ use common::{Robot, app, phase, simnode, stack_yaml, trial_history};
 
 #[test]
 fn impossible_spec_ends_unsat_naming_the_constraint() {
-    let t0 = Instant::now();
     let robot = Robot::start();
+    let t0 = Instant::now();
     let name = "impossible";
     let stack = stack_yaml(
         name,
