@@ -190,7 +190,11 @@ impl Robot {
         let n = COUNTER.fetch_add(1, Ordering::Relaxed);
         let file = self.dir.path().join(format!("apply-{n}.yaml"));
         std::fs::write(&file, yaml).expect("write manifest");
+        let started = Instant::now();
         let out = self.cli(&["apply", "-f", file.to_str().expect("utf-8 path")]);
+        if started.elapsed() > Duration::from_secs(5) {
+            eprintln!("e2e: slow `configbot apply`: {:?}", started.elapsed());
+        }
         assert!(
             out.status.success(),
             "apply failed:\n{}{}",
@@ -544,7 +548,8 @@ pub fn trial_history(o: &Value) -> Vec<Value> {
 impl Robot {
     /// Waits until every named node has a process in its cgroup.
     pub fn wait_nodes(&self, nodes: &[&str]) {
-        let deadline = Instant::now() + Duration::from_secs(30);
+        let started = Instant::now();
+        let deadline = started + Duration::from_secs(30);
         while !nodes.iter().all(|n| !node_pids(&self.root, n).is_empty()) {
             assert!(
                 Instant::now() < deadline,
@@ -552,6 +557,9 @@ impl Robot {
                 self.server_log()
             );
             std::thread::sleep(Duration::from_millis(100));
+        }
+        if started.elapsed() > Duration::from_secs(10) {
+            eprintln!("e2e: slow node start: {:?}", started.elapsed());
         }
         // Each simnode registers with the master right after it starts.
         std::thread::sleep(Duration::from_millis(1500));
