@@ -4,10 +4,18 @@
 //! and ROS master port, driven through the `configbot` CLI. Dropping a
 //! [`Robot`] kills the server and every process in its cgroup subtree and
 //! removes the subtree, even when the test failed.
+//!
+//! The scenarios are heavy (they load both CPUs on purpose), so a [`Robot`]
+//! holds a process-wide lock for its whole life: tests of one binary run one
+//! at a time, and cargo runs the test binaries one after another. The robot's
+//! subtree gets a high `cpu.shares` ([`ROBOT_SHARES`]) so that, like on a real
+//! robot that owns its CPUs, the stack is not at the mercy of whatever else
+//! runs on the (shared) test machine.
 
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output, Stdio};
 use std::sync::atomic::{AtomicU32, Ordering};
+use std::sync::{Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 
 use configbot_cgroups::{CgroupBackend, Layout, SubtreeRoot, V1Backend};
@@ -24,6 +32,20 @@ pub fn examples() -> PathBuf {
 }
 
 static COUNTER: AtomicU32 = AtomicU32::new(0);
+
+/// Serialises the scenarios of one test binary.
+static SERIAL: Mutex<()> = Mutex::new(());
+
+/// `cpu.shares` of the robot's subtree root (a plain task has 1024).
+pub const ROBOT_SHARES: u64 = 65536;
+
+/// Milliseconds since the Unix epoch.
+pub fn now_ms() -> u64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.as_millis() as u64)
+        .unwrap_or(0)
+}
 
 /// `configbot-e2e-<pid>-<n>`: unique per test, parsed back by the leftover check.
 pub fn unique_root() -> String {
@@ -53,17 +75,22 @@ pub struct Robot {
     pub root: String,
     pub ros_port: u16,
     server: Option<Child>,
+    /// Released after `Drop::drop` cleaned up (fields drop after it).
+    _serial: MutexGuard<'static, ()>,
 }
 
 impl Robot {
     /// Starts `configbot serve --agent` and waits for its API socket.
     pub fn start() -> Robot {
+        let serial = SERIAL.lock().unwrap_or_else(|p| p.into_inner());
         let mut r = Robot {
             dir: tempfile::tempdir().expect("temp dir"),
             root: unique_root(),
             ros_port: free_port(),
             server: None,
+            _serial: serial,
         };
+        r.prioritise();
         r.spawn_server();
         r
     }
@@ -74,6 +101,24 @@ impl Robot {
 
     pub fn master_uri(&self) -> String {
         format!("http://localhost:{}/", self.ros_port)
+    }
+
+    /// Creates the subtree root in the `cpu` hierarchy, and a sibling
+    /// `<root>-ctl` for the server itself, both with [`ROBOT_SHARES`] (the
+    /// server measures the nodes, so it must not be starved by them either).
+    fn prioritise(&self) {
+        let Some(cpu) = Layout::detect().ok().and_then(|l| l.v1_cpu) else {
+            return;
+        };
+        for dir in [cpu.join(&self.root), self.ctl_cgroup(&cpu)] {
+            std::fs::create_dir_all(&dir).expect("create a cpu cgroup");
+            std::fs::write(dir.join("cpu.shares"), ROBOT_SHARES.to_string())
+                .expect("set cpu.shares");
+        }
+    }
+
+    fn ctl_cgroup(&self, cpu: &Path) -> PathBuf {
+        cpu.join(format!("{}-ctl", self.root))
     }
 
     fn spawn_server(&mut self) {
@@ -96,6 +141,10 @@ impl Robot {
             .stderr(log)
             .spawn()
             .expect("spawn configbot serve");
+        if let Some(cpu) = Layout::detect().ok().and_then(|l| l.v1_cpu) {
+            let procs = self.ctl_cgroup(&cpu).join("cgroup.procs");
+            std::fs::write(procs, child.id().to_string()).expect("move the server");
+        }
         self.server = Some(child);
         let deadline = Instant::now() + Duration::from_secs(30);
         while std::os::unix::net::UnixStream::connect(self.socket()).is_err() {
@@ -141,7 +190,11 @@ impl Robot {
         let n = COUNTER.fetch_add(1, Ordering::Relaxed);
         let file = self.dir.path().join(format!("apply-{n}.yaml"));
         std::fs::write(&file, yaml).expect("write manifest");
+        let started = Instant::now();
         let out = self.cli(&["apply", "-f", file.to_str().expect("utf-8 path")]);
+        if started.elapsed() > Duration::from_secs(5) {
+            eprintln!("e2e: slow `configbot apply`: {:?}", started.elapsed());
+        }
         assert!(
             out.status.success(),
             "apply failed:\n{}{}",
@@ -179,14 +232,96 @@ impl Robot {
             }
             if Instant::now() > deadline {
                 panic!(
-                    "timed out after {timeout:?} waiting for {kind}/{name}: {what}\nlast: {}\nserver log:\n{}",
+                    "timed out after {timeout:?} waiting for {kind}/{name}: {what}\nlast: {}\nserver log:\n{}\nevents:\n{}",
                     obj.map(|o| serde_json::to_string_pretty(&o).unwrap_or_default())
                         .unwrap_or_else(|| "(none)".into()),
-                    self.server_log()
+                    self.server_log(),
+                    self.event_log(name)
                 );
             }
             std::thread::sleep(Duration::from_millis(250));
         }
+    }
+
+    /// Events about object `name` (oldest first), from the API.
+    pub fn events(&self, name: &str) -> Vec<Value> {
+        use std::io::{Read, Write};
+        let Ok(mut s) = std::os::unix::net::UnixStream::connect(self.socket()) else {
+            return Vec::new();
+        };
+        let req = format!(
+            "GET /api/v1/namespaces/default/events?fieldSelector=involvedObject.name%3D{name} HTTP/1.1\r\nHost: localhost\r\nConnection: close\r\n\r\n"
+        );
+        if s.write_all(req.as_bytes()).is_err() {
+            return Vec::new();
+        }
+        let mut buf = Vec::new();
+        let _ = s.read_to_end(&mut buf);
+        let text = String::from_utf8_lossy(&buf);
+        let Some((head, body)) = text.split_once("\r\n\r\n") else {
+            return Vec::new();
+        };
+        let body = if head
+            .to_ascii_lowercase()
+            .contains("transfer-encoding: chunked")
+        {
+            dechunk(body)
+        } else {
+            body.to_string()
+        };
+        serde_json::from_str::<Value>(&body)
+            .ok()
+            .and_then(|v| v["items"].as_array().cloned())
+            .unwrap_or_default()
+    }
+
+    /// Events about `name` with this reason.
+    pub fn events_with(&self, name: &str, reason: &str) -> Vec<Value> {
+        self.events(name)
+            .into_iter()
+            .filter(|e| e["reason"] == reason)
+            .collect()
+    }
+
+    /// Polls until an event about `name` with `reason` matching `cond`
+    /// exists; returns it and the wall-clock ms when the test saw it.
+    pub fn wait_event(
+        &self,
+        name: &str,
+        reason: &str,
+        timeout: Duration,
+        cond: impl Fn(&Value) -> bool,
+    ) -> (Value, u64) {
+        let deadline = Instant::now() + timeout;
+        loop {
+            if let Some(e) = self.events_with(name, reason).into_iter().find(|e| cond(e)) {
+                return (e, now_ms());
+            }
+            if Instant::now() > deadline {
+                panic!(
+                    "timed out after {timeout:?} waiting for event {reason} on {name}\nevents: {}\nserver log:\n{}",
+                    self.event_log(name),
+                    self.server_log()
+                );
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+
+    /// The events about `name` as text lines (for failure messages).
+    pub fn event_log(&self, name: &str) -> String {
+        self.events(name)
+            .iter()
+            .map(|e| {
+                format!(
+                    "{} {} {}",
+                    e["lastTimestamp"].as_str().unwrap_or(""),
+                    e["reason"].as_str().unwrap_or(""),
+                    e["message"].as_str().unwrap_or("")
+                )
+            })
+            .collect::<Vec<_>>()
+            .join("\n")
     }
 
     /// Pids in node cgroups of this robot's subtree.
@@ -209,6 +344,17 @@ impl Drop for Robot {
             let _ = c.wait();
         }
         nuke(&self.root);
+        if let Some(cpu) = Layout::detect().ok().and_then(|l| l.v1_cpu) {
+            let ctl = self.ctl_cgroup(&cpu);
+            let deadline = Instant::now() + Duration::from_secs(10);
+            while ctl.exists() && std::fs::remove_dir(&ctl).is_err() && Instant::now() < deadline {
+                let procs = std::fs::read_to_string(ctl.join("cgroup.procs")).unwrap_or_default();
+                for p in procs.lines().filter_map(|l| l.trim().parse().ok()) {
+                    kill9(p);
+                }
+                std::thread::sleep(Duration::from_millis(20));
+            }
+        }
     }
 }
 
@@ -254,6 +400,60 @@ pub fn nuke(root: &str) {
     let _ = b.remove_root();
 }
 
+fn dechunk(body: &str) -> String {
+    let mut out = String::new();
+    let mut rest = body;
+    while let Some((len, tail)) = rest.split_once("\r\n") {
+        let Ok(n) = usize::from_str_radix(len.trim(), 16) else {
+            break;
+        };
+        if n == 0 || tail.len() < n {
+            break;
+        }
+        out.push_str(&tail[..n]);
+        rest = tail[n..].trim_start_matches("\r\n");
+    }
+    out
+}
+
+/// Pids of the node cgroup of `node` (e.g. `/hog`) in subtree `root`.
+pub fn node_pids(root: &str, node: &str) -> Vec<u32> {
+    let Some(b) = v1_backend(root) else {
+        return Vec::new();
+    };
+    b.nodes()
+        .unwrap_or_default()
+        .into_iter()
+        .filter(|n| n.as_str() == node)
+        .flat_map(|n| b.pids(&n).unwrap_or_default())
+        .collect()
+}
+
+/// Seconds since the epoch of an RFC 3339 UTC timestamp `YYYY-MM-DDTHH:MM:SSZ`.
+pub fn rfc3339_secs(t: &str) -> Option<u64> {
+    let (date, time) = t.trim_end_matches('Z').split_once('T')?;
+    let d: Vec<i64> = date
+        .split('-')
+        .map(|x| x.parse().ok())
+        .collect::<Option<_>>()?;
+    let h: Vec<i64> = time
+        .split(['+', '.'])
+        .next()?
+        .split(':')
+        .map(|x| x.parse().ok())
+        .collect::<Option<_>>()?;
+    let (y, m, day) = (d[0], d[1], d[2]);
+    // Days from civil (Howard Hinnant's algorithm).
+    let y2 = if m <= 2 { y - 1 } else { y };
+    let era = y2.div_euclid(400);
+    let yoe = y2 - era * 400;
+    let mp = (m + 9) % 12;
+    let doy = (153 * mp + 2) / 5 + day - 1;
+    let doe = yoe * 365 + yoe / 4 - yoe / 100 + doy;
+    let days = era * 146_097 + doe - 719_468;
+    u64::try_from(days * 86_400 + h[0] * 3600 + h[1] * 60 + h[2]).ok()
+}
+
 fn kill9(pid: u32) {
     let Ok(pid) = libc::pid_t::try_from(pid) else {
         return;
@@ -263,4 +463,231 @@ fn kill9(pid: u32) {
     unsafe {
         libc::kill(pid, libc::SIGKILL);
     }
+}
+
+/// How a node of a test stack runs.
+pub enum NodeRun {
+    /// `configbot simnode ARGS` started by the agent.
+    Simnode(Vec<String>),
+    /// Adopted when found: the `match` block as flow YAML, e.g. `{rosNode: /hog}`.
+    Match(String),
+}
+
+/// A node of a test stack.
+pub struct TestNode {
+    pub name: String,
+    pub run: NodeRun,
+}
+
+/// `configbot simnode --name NAME ARGS...` as a stack node.
+pub fn simnode(name: &str, args: &[&str]) -> TestNode {
+    let mut a = vec!["simnode".to_string(), "--name".into(), name.into()];
+    a.extend(args.iter().map(|s| s.to_string()));
+    TestNode {
+        name: name.into(),
+        run: NodeRun::Simnode(a),
+    }
+}
+
+/// An app of a test stack: (name, core, nodes).
+pub struct TestApp {
+    pub name: String,
+    pub core: bool,
+    pub nodes: Vec<TestNode>,
+}
+
+pub fn app(name: &str, core: bool, nodes: Vec<TestNode>) -> TestApp {
+    TestApp {
+        name: name.into(),
+        core,
+        nodes,
+    }
+}
+
+/// A RobotStack manifest (robot model `e2e`, 2 CPUs) whose simnodes run
+/// the program built for the tests.
+pub fn stack_yaml(name: &str, apps: &[TestApp]) -> String {
+    let bin = configbot_bin().display().to_string();
+    let mut y = format!(
+        "apiVersion: configbot.dev/v1alpha1\nkind: RobotStack\nmetadata:\n  name: {name}\nspec:\n  robot:\n    model: e2e\n    cpus: 2\n  apps:\n"
+    );
+    for a in apps {
+        y += &format!(
+            "    - name: {}\n      core: {}\n      nodes:\n",
+            a.name, a.core
+        );
+        for n in &a.nodes {
+            y += &format!("        - name: {}\n", n.name);
+            match &n.run {
+                NodeRun::Simnode(args) => {
+                    y += &format!(
+                        "          run:\n            command: {bin}\n            args: {}\n",
+                        serde_json::to_string(args).expect("json")
+                    );
+                }
+                NodeRun::Match(m) => y += &format!("          match: {m}\n"),
+            }
+        }
+    }
+    y
+}
+
+/// The phase of a PerformanceSpec object.
+pub fn phase(o: &Value) -> &str {
+    o["status"]["phase"].as_str().unwrap_or("")
+}
+
+/// `status.trialHistory` of a PerformanceSpec object.
+pub fn trial_history(o: &Value) -> Vec<Value> {
+    o["status"]["trialHistory"]
+        .as_array()
+        .cloned()
+        .unwrap_or_default()
+}
+
+impl Robot {
+    /// Waits until every named node has a process in its cgroup.
+    pub fn wait_nodes(&self, nodes: &[&str]) {
+        let started = Instant::now();
+        let deadline = started + Duration::from_secs(30);
+        while !nodes.iter().all(|n| !node_pids(&self.root, n).is_empty()) {
+            assert!(
+                Instant::now() < deadline,
+                "nodes {nodes:?} did not start\n{}",
+                self.server_log()
+            );
+            std::thread::sleep(Duration::from_millis(100));
+        }
+        if started.elapsed() > Duration::from_secs(10) {
+            eprintln!("e2e: slow node start: {:?}", started.elapsed());
+        }
+        // Each simnode registers with the master right after it starts.
+        std::thread::sleep(Duration::from_millis(1500));
+    }
+}
+
+/// The non-core hogs of [`hog_stack`].
+pub const HOGS: [&str; 5] = ["/hog1", "/hog2", "/hog3", "/hog4", "/hog5"];
+/// Every node of [`hog_stack`].
+pub const HOG_STACK_NODES: [&str; 7] = [
+    "/lidar", "/nav", "/hog1", "/hog2", "/hog3", "/hog4", "/hog5",
+];
+
+/// A stack whose default config violates its core constraint, and its spec
+/// (two documents). `/lidar` publishes `/scan` at 40 Hz; the core `/nav`
+/// turns each scan into `/cmd_vel` with 15 ms of CPU (0.6 CPU at 40 Hz);
+/// five non-core hogs each start a thread per scan that burns 100 ms (4 CPUs
+/// of demand each, at most 4 live threads). With seven equally weighted node
+/// cgroups `/nav` gets well under its 0.6 CPU by default (measured: 10–25 Hz
+/// of `/cmd_vel` against a target of 36 Hz); limiting the hogs (knobs: their
+/// CPU limits, 0.05–0.25 CPU each) to about 1 CPU in total gives `/nav` 40 Hz.
+pub fn hog_stack(name: &str, max_trials: u32, target: f64) -> String {
+    hog_stack_with(name, max_trials, target, Vec::new())
+}
+
+/// [`hog_stack`] with more apps.
+pub fn hog_stack_with(name: &str, max_trials: u32, target: f64, extra: Vec<TestApp>) -> String {
+    let hog = |n: &str, out: &str| {
+        simnode(
+            n,
+            &[
+                "--thread-per-message",
+                "--max-threads",
+                "4",
+                "--on",
+                &format!("/scan->{out}:cost-ms=100"),
+            ],
+        )
+    };
+    let mut apps = vec![
+        app(
+            "sensors",
+            true,
+            vec![simnode(
+                "/lidar",
+                &["--publish", "/scan:40:1024", "--cost-ms-per-msg", "1"],
+            )],
+        ),
+        app(
+            "nav",
+            true,
+            vec![simnode("/nav", &["--on", "/scan->/cmd_vel:cost-ms=15"])],
+        ),
+        app(
+            "hogs",
+            false,
+            HOGS.iter().map(|h| hog(h, &format!("{h}_out"))).collect(),
+        ),
+    ];
+    apps.extend(extra);
+    let stack = stack_yaml(name, &apps);
+    format!(
+        "{stack}---
+apiVersion: configbot.dev/v1alpha1
+kind: PerformanceSpec
+metadata:
+  name: {name}
+spec:
+  stackRef: {{name: {name}}}
+  metrics:
+    - name: cmd-vel-rate
+      app: nav
+      source: {{topicRate: {{topic: /cmd_vel}}}}
+      target: {{atLeast: {target}}}
+    - name: hog-rate
+      app: hogs
+      source: {{topicRate: {{topic: /hog1_out}}}}
+      target: {{atLeast: 10}}
+  knobs:
+    cpu: {{min: 0.05, max: 0.25, periodMicros: 20000}}
+    adaptors: {{enabled: false}}
+  tuning: {{trialSeconds: 2, settleSeconds: 0.5, maxTrials: {max_trials}, seed: 3}}
+  monitoring: {{violationWindowSeconds: 3}}
+"
+    )
+}
+
+/// Baseline and trials of a PerformanceSpec object, one line each (for messages).
+pub fn trial_table(o: &Value) -> String {
+    let st = &o["status"];
+    std::iter::once(("baseline".to_string(), &st["baseline"]))
+        .chain(
+            st["trialHistory"]
+                .as_array()
+                .into_iter()
+                .flatten()
+                .map(|t| (format!("trial {}", t["index"]), t)),
+        )
+        .map(|(n, t)| {
+            format!(
+                "{n}: sat {} values {} config {}",
+                t["satisfaction"], t["values"], t["config"]["cpu"]
+            )
+        })
+        .collect::<Vec<_>>()
+        .join("\n")
+}
+
+/// `cpu.cfs_quota_us` of a node's cgroup (-1: no limit), if it exists.
+pub fn cpu_quota_us(root: &str, node: &str) -> Option<i64> {
+    let b = v1_backend(root)?;
+    let n = configbot_cgroups::NodeName::new(node).ok()?;
+    std::fs::read_to_string(b.node_path(&n).join("cpu.cfs_quota_us"))
+        .ok()?
+        .trim()
+        .parse()
+        .ok()
+}
+
+/// Whether the node cgroups' quotas are those of `config` (a ResourceConfig
+/// as JSON: `cpu` in CPUs per node, `cpuPeriodMicros`), within 1 µs.
+pub fn quotas_match(root: &str, config: &Value) -> bool {
+    let period = config["cpuPeriodMicros"].as_f64().unwrap_or(100_000.0);
+    config["cpu"].as_object().is_some_and(|m| {
+        !m.is_empty()
+            && m.iter().all(|(node, cpus)| {
+                let want = (cpus.as_f64().unwrap_or(-1.0) * period).round() as i64;
+                cpu_quota_us(root, node).is_some_and(|q| (q - want).abs() <= 1)
+            })
+    })
 }
