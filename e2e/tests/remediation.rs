@@ -151,15 +151,9 @@ fn remediation_is_undone_when_the_annotation_allows_tuning() {
 }
 
 /// The same through the spec field: `tuning.allowed` set back to true while
-/// remediating should restart the stopped app too.
-///
-/// BUG (controller/src/tuning/runner.rs, `iterate`): a new spec generation
-/// replaces the run with `Run::new(.., SpecChanged)`, which forgets that the
-/// old run was `Remediating { apps }`: no `RemediationUndone`, the hogs stay
-/// stopped for good, and the new run's baseline (0 knobs, the hogs are not
-/// in the graph) is declared Satisfied → Monitoring.
+/// remediating restarts the stopped app too (a new spec generation starts a
+/// new run, which first undoes the old run's remediation).
 #[test]
-#[ignore = "bug in the tuning loop: a spec change while remediating never restarts the stopped apps (see doc comment)"]
 fn remediation_is_undone_when_the_spec_field_allows_tuning() {
     let robot = Robot::start();
     let t0 = Instant::now();

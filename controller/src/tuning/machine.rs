@@ -177,6 +177,23 @@ pub struct Run {
 }
 
 impl Run {
+    /// The run that follows `old` when the spec changes: a fresh run from the
+    /// config on the robot, except that apps a remediation stopped are started
+    /// again first; the new run knows nothing of them and would leave them
+    /// stopped for good.
+    pub fn after_spec_change(old: Run, generation: i64) -> Run {
+        let mut r = Run::new(generation, Trigger::SpecChanged);
+        r.current = old.current;
+        if let State::RemediateStop { apps }
+        | State::RemediateApply { apps }
+        | State::Remediating { apps }
+        | State::RemediateUndo { apps } = old.state
+        {
+            r.state = State::RemediateUndo { apps };
+        }
+        r
+    }
+
     pub fn new(generation: i64, trigger: Trigger) -> Run {
         Run {
             state: State::Observe {

@@ -734,3 +734,35 @@ fn safe_exploration_is_off_when_the_baseline_is_below_the_floor() {
     assert!(!baseline_is_safe(0.8, &defs, &vec![target * 0.5; core]));
     assert!(baseline_is_safe(0.8, &defs, &vec![target * 0.9; core]));
 }
+
+#[test]
+fn a_spec_change_while_remediating_starts_the_stopped_apps_first() {
+    let mut old = with(State::Remediating {
+        apps: vec!["obj".into()],
+    });
+    old.current = cfg();
+    let new = Run::after_spec_change(old, 7);
+    assert_eq!(new.generation, 7);
+    assert_eq!(
+        new.state,
+        State::RemediateUndo {
+            apps: vec!["obj".into()]
+        }
+    );
+    assert_eq!(new.current, cfg());
+    // Any other state starts over from observing.
+    let fresh = Run::after_spec_change(
+        with(State::Observe {
+            trigger: Trigger::SpecChanged,
+            skip_library: false,
+        }),
+        8,
+    );
+    assert_eq!(
+        name(&fresh.state),
+        name(&State::Observe {
+            trigger: Trigger::SpecChanged,
+            skip_library: false
+        })
+    );
+}

@@ -109,9 +109,29 @@ struct Runner {
     events: broadcast::Receiver<RobotEvent>,
     next_graph_check_ms: u64,
     graph_interval_ms: u64,
-    /// Time of the last process exec seen (to report detection latency).
-    last_exec_ms: Option<u64>,
+    /// Recent process execs (pid, time), to report how long after its
+    /// process started a new node was detected.
+    execs: std::collections::VecDeque<(u32, u64)>,
     failures: u32,
+}
+
+/// The newest node of `new_nodes` that is not in `old_nodes` and whose pid
+/// (from the graph) exec'd recently: its name and exec time (pure).
+pub fn new_node_exec(
+    execs: &std::collections::VecDeque<(u32, u64)>,
+    old_nodes: &[String],
+    new_nodes: &[String],
+    graph: &configbot_dataplane::Graph,
+) -> Option<(String, u64)> {
+    new_nodes
+        .iter()
+        .filter(|n| !old_nodes.contains(n))
+        .filter_map(|n| {
+            let pid = graph.nodes.get(n)?.pid?;
+            let at = execs.iter().rev().find(|(p, _)| *p == pid)?.1;
+            Some((n.clone(), at))
+        })
+        .max_by_key(|(_, at)| *at)
 }
 
 /// Run the tuning loop of one spec until the spec is deleted.
@@ -124,7 +144,7 @@ pub async fn run_spec(ctx: RunnerCtx, ns: String, name: String) {
         events,
         next_graph_check_ms: 0,
         graph_interval_ms: 30_000,
-        last_exec_ms: None,
+        execs: std::collections::VecDeque::new(),
         failures: 0,
     };
     let mut run: Option<Run> = None;
@@ -204,9 +224,7 @@ impl Runner {
                 let t = Trigger::SpecChanged;
                 self.trigger_metric(&t);
                 self.event(true, t.reason(), &t.message());
-                let mut r = Run::new(generation, t);
-                r.current = old.current;
-                r
+                Run::after_spec_change(old, generation)
             }
             None => match store.get_state(STATE_SCOPE, &key) {
                 Ok(Some(body)) => match serde_json::from_str::<Persisted>(&body) {
@@ -223,6 +241,8 @@ impl Runner {
                         );
                         resumed
                     }
+                    // The spec changed while this controller was down.
+                    Ok(p) if p.uid == uid => Run::after_spec_change(p.run, generation),
                     _ => Run::new(generation, Trigger::SpecChanged),
                 },
                 Ok(None) => Run::new(generation, Trigger::SpecChanged),
@@ -374,8 +394,11 @@ impl Runner {
                         biased;
                         ev = self.events.recv() => match ev {
                             Ok(e) => {
-                                if let RobotEvent::ProcessExec { at_unix_ms, .. } = &e {
-                                    self.last_exec_ms = Some(*at_unix_ms);
+                                if let RobotEvent::ProcessExec { pid, at_unix_ms, .. } = &e {
+                                    if self.execs.len() >= 512 {
+                                        self.execs.pop_front();
+                                    }
+                                    self.execs.push_back((*pid, *at_unix_ms));
                                 }
                                 if let Some(cause) = monitor::recheck_cause(&e) {
                                     if let Some(t) = self.context_trigger(run, stack, labels, &cause).await? {
@@ -428,9 +451,11 @@ impl Runner {
             self.next_graph_check_ms = self.ctx.clock.now_ms() + self.graph_interval_ms;
             return Ok(None);
         }
-        let by = match self.last_exec_ms.take() {
-            Some(t) => format!(
-                "{by}; {} ms after the last process exec",
+        let old_nodes: &[String] = run.context.as_ref().map_or(&[], |c| &c.nodes);
+        let started = new_node_exec(&self.execs, old_nodes, &ctx.nodes, &graph);
+        let by = match started {
+            Some((node, t)) => format!(
+                "{by}; {node} seen {} ms after its process exec",
                 self.ctx.clock.now_ms().saturating_sub(t)
             ),
             None => by.to_string(),
@@ -596,5 +621,40 @@ impl Drop for TuningManager {
         for (_, h) in r.drain() {
             h.abort();
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use configbot_dataplane::{Graph, NodeInfo};
+
+    #[test]
+    fn detection_latency_is_measured_from_the_new_nodes_own_exec() {
+        let mut g = Graph::default();
+        for (n, pid) in [("/nav", 10), ("/hog", 42)] {
+            g.nodes.insert(
+                n.into(),
+                NodeInfo {
+                    name: n.into(),
+                    uri: String::new(),
+                    pid: Some(pid),
+                },
+            );
+        }
+        // Other processes exec'd after the hog: they must not count.
+        let execs: std::collections::VecDeque<(u32, u64)> =
+            [(10, 100), (42, 5_000), (77, 9_000)].into_iter().collect();
+        let old = vec!["/nav".to_owned()];
+        let new = vec!["/hog".to_owned(), "/nav".to_owned()];
+        assert_eq!(
+            new_node_exec(&execs, &old, &new, &g),
+            Some(("/hog".to_owned(), 5_000))
+        );
+        // A node whose process started before the monitor saw it: no claim.
+        assert_eq!(
+            new_node_exec(&execs, &old, &["/nav".to_owned(), "/x".to_owned()], &g),
+            None
+        );
     }
 }
