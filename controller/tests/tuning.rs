@@ -410,7 +410,7 @@ async fn familiar_context_reapplies_library_config_without_trials() {
         events[..hit].iter().any(|(r, m)| r == "ContextChanged"
             && m.contains("det")
             && m.contains("process exec")
-            && m.contains(" 0 ms after the last process exec")),
+            && m.contains(" 0 ms after its process exec")),
         "{events:#?}"
     );
     // Simulated time from the app start to the re-apply: under 2 s.

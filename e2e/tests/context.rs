@@ -90,9 +90,9 @@ fn new_app_is_detected_and_known_context_reapplies_fast() {
         msg.contains("extra"),
         "the new context names the new app: {msg}"
     );
-    // The loop's own measure: "N ms after the last process exec".
+    // The loop's own measure: "/hog6 seen N ms after its process exec".
     let reported: Option<u64> = msg
-        .split(" ms after the last process exec")
+        .split(" ms after its process exec")
         .next()
         .and_then(|h| h.rsplit(' ').next())
         .and_then(|x| x.parse().ok());
@@ -105,12 +105,14 @@ fn new_app_is_detected_and_known_context_reapplies_fast() {
     );
     // What the test saw (upper bound: includes its 20 ms polling and the API round trip).
     let seen_after = seen_ms - before_exec;
-    // (The loop's own "N ms after the last process exec" counts from the
-    // latest exec of any process on the machine, so only this bound is used.)
     assert!(
         seen_after <= 1000,
         "detected {seen_after} ms after the spawn (loop reports {reported:?} ms): {msg}"
     );
+    // The loop's own figure counts from /hog6's exec as the process monitor saw it.
+    if let Some(r) = reported {
+        assert!(r <= 1000, "the loop reports {r} ms: {msg}");
+    }
     // The agent adopted /hog6 into its node cgroup (so its CPU knob acts on it).
     let hog_pid = hog.0.id();
     let deadline = Instant::now() + Duration::from_secs(10);

@@ -168,6 +168,12 @@ impl SimRobot {
         s.nodes.iter().filter(|n| !s.stopped.contains(&n.app))
     }
 
+    /// A simulated node's pid: 1000 + its index in the stack.
+    fn pid_of(s: &SimState, node: &str) -> Option<u32> {
+        let i = s.nodes.iter().position(|n| n.name == node)?;
+        u32::try_from(i).ok().map(|i| 1000 + i)
+    }
+
     fn graph_now(&self) -> Graph {
         let s = self.lock();
         let mut g = Graph::default();
@@ -177,7 +183,7 @@ impl SimRobot {
                 NodeInfo {
                     name: n.name.clone(),
                     uri: format!("sim://{}", n.name),
-                    pid: None,
+                    pid: Self::pid_of(&s, &n.name),
                 },
             );
             if let Some(p) = &n.publishes {
@@ -220,11 +226,21 @@ impl SimRobot {
         let after = self.graph_now();
         let at = self.now_ms();
         if !stopped {
-            let _ = self.events.send(RobotEvent::ProcessExec {
-                pid: 1000,
-                comm: Some(app.chars().take(15).collect()),
-                at_unix_ms: at,
-            });
+            let started: Vec<(u32, String)> = {
+                let s = self.lock();
+                s.nodes
+                    .iter()
+                    .filter(|n| n.app == app)
+                    .filter_map(|n| Some((Self::pid_of(&s, &n.name)?, n.name.clone())))
+                    .collect()
+            };
+            for (pid, name) in started {
+                let _ = self.events.send(RobotEvent::ProcessExec {
+                    pid,
+                    comm: Some(name.trim_start_matches('/').chars().take(15).collect()),
+                    at_unix_ms: at,
+                });
+            }
         }
         let _ = self.events.send(RobotEvent::GraphChanged {
             events: before.diff(&after),
