@@ -314,8 +314,26 @@ fn performance_spec(e: &mut Errors, p: &PerformanceSpec) {
             ),
         );
     }
+    // The kernel refuses a CFS quota under 1000 µs (v1 cfs_quota_us and v2 cpu.max).
+    let quota_floor = |e: &mut Errors, path: String, min: f64| {
+        let quota = min * cpu.period_micros as f64;
+        if min > 0.0 && quota < 1000.0 - 1e-6 {
+            e.add(
+                path,
+                format!(
+                    "{min} CPU × periodMicros {} is a {quota:.0} µs quota, below the kernel's 1000 µs minimum; raise it to at least {} or lengthen the period",
+                    cpu.period_micros,
+                    1000.0 / cpu.period_micros as f64
+                ),
+            );
+        }
+    };
+    quota_floor(e, "spec.knobs.cpu.min".into(), cpu.min);
     let mut seen = BTreeMap::new();
     for (i, b) in cpu.nodes.iter().enumerate() {
+        if let Some(min) = b.min {
+            quota_floor(e, format!("spec.knobs.cpu.nodes[{i}].min"), min);
+        }
         let bp = format!("spec.knobs.cpu.nodes[{i}]");
         e.check(format!("{bp}.node"), check_ros_name(&b.node));
         if let Some(first) = seen.insert(b.node.as_str(), i) {
