@@ -49,23 +49,6 @@ pub fn robot_event(e: &RuntimeEvent) -> Option<RobotEvent> {
     })
 }
 
-/// Forwards `rx`'s runtime events, mapped, into `tx` until either side closes.
-fn forward(mut rx: broadcast::Receiver<RuntimeEvent>, tx: broadcast::Sender<RobotEvent>) {
-    tokio::spawn(async move {
-        loop {
-            match rx.recv().await {
-                Ok(e) => {
-                    if let Some(e) = robot_event(&e) {
-                        let _ = tx.send(e);
-                    }
-                }
-                Err(broadcast::error::RecvError::Lagged(_)) => continue,
-                Err(broadcast::error::RecvError::Closed) => break,
-            }
-        }
-    });
-}
-
 /// The node runtime in this process.
 pub struct EmbeddedRobot {
     runtime: NodeRuntime,
@@ -82,7 +65,7 @@ impl EmbeddedRobot {
     /// Wraps `runtime`; must be called inside a tokio runtime.
     pub fn new(runtime: NodeRuntime) -> EmbeddedRobot {
         let (events, _) = broadcast::channel(1024);
-        forward(runtime.events(), events.clone());
+        tokio::spawn(forward_until_closed(runtime.events(), events.clone()));
         EmbeddedRobot { runtime, events }
     }
 
@@ -186,6 +169,7 @@ impl RemoteRobot {
     }
 }
 
+/// Forwards `rx`'s runtime events, mapped, into `tx` until `rx` closes.
 async fn forward_until_closed(
     mut rx: broadcast::Receiver<RuntimeEvent>,
     tx: broadcast::Sender<RobotEvent>,

@@ -15,7 +15,9 @@ use configbot_manifests::{Kind, PerformanceSpec, RobotStack};
 use serde::Serialize;
 use serde_json::Value;
 
-use super::demo::{PrivateRobot, example, histogram_chart, measure_defs, progress_chart};
+use super::demo::{
+    PrivateRobot, example, histogram_chart, measure_defs, print_eval, progress_chart, wait_for_flow,
+};
 use crate::tuning::knobs;
 use crate::tuning::measure::{self, Evaluation, MetricDef};
 use crate::tuning::robot::Robot;
@@ -137,17 +139,11 @@ async fn start(
     robot
         .apply(&serde_json::to_value(stack)?, Kind::RobotStack)
         .await?;
-    let deadline = Instant::now() + Duration::from_secs(60);
-    loop {
-        let r = measure_defs(robot.robot.as_ref(), defs, 1).await?;
-        if r.series.iter().all(|s| s.mean > 0.0) {
-            return Ok(robot);
-        }
-        anyhow::ensure!(
-            Instant::now() < deadline,
-            "{name}: topics did not flow within 60 s"
-        );
-    }
+    anyhow::ensure!(
+        wait_for_flow(robot.robot.as_ref(), defs, Duration::from_secs(60)).await,
+        "{name}: topics did not flow within 60 s"
+    );
+    Ok(robot)
 }
 
 fn result(
@@ -165,18 +161,7 @@ fn result(
         .and_then(|d| r.series.iter().find(|s| s.probe == d.probe))
         .map(|s| s.values.clone())
         .unwrap_or_default();
-    println!(
-        "    {method:<12} satisfaction {:>5.1}%  {}",
-        e.satisfaction * 100.0,
-        defs.iter()
-            .map(|d| format!(
-                "{} {:.1}",
-                d.name,
-                e.means.get(&d.name).copied().unwrap_or(0.0)
-            ))
-            .collect::<Vec<_>>()
-            .join(", ")
-    );
+    print_eval(method, defs, r);
     MethodResult {
         stack: stack.into(),
         method: method.into(),

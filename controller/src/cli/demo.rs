@@ -152,7 +152,7 @@ pub async fn measure_defs(
 }
 
 /// Waits until every `defs` topic delivers messages (the stack is up).
-async fn wait_for_flow(robot: &dyn Robot, defs: &[MetricDef], timeout: Duration) -> bool {
+pub async fn wait_for_flow(robot: &dyn Robot, defs: &[MetricDef], timeout: Duration) -> bool {
     let deadline = Instant::now() + timeout;
     while Instant::now() < deadline {
         if let Ok(r) = measure_defs(robot, defs, 1).await
@@ -306,9 +306,12 @@ pub async fn wait_for_outcome(
         }
         shown = trials.len();
         let phase = st["phase"].as_str().unwrap_or("");
-        if matches!(phase, "Monitoring" | "Unsat" | "Satisfied") && st["bestConfig"].is_object()
-            || phase == "Unsat"
-        {
+        let settled = match phase {
+            "Unsat" => true,
+            "Monitoring" | "Satisfied" => st["bestConfig"].is_object(),
+            _ => false,
+        };
+        if settled {
             return Ok(st);
         }
         anyhow::ensure!(
@@ -320,7 +323,7 @@ pub async fn wait_for_outcome(
     }
 }
 
-fn print_eval(label: &str, defs: &[MetricDef], r: &MeasureReport) {
+pub fn print_eval(label: &str, defs: &[MetricDef], r: &MeasureReport) {
     let e = measure::evaluate(defs, r, Default::default());
     let parts: Vec<String> = defs
         .iter()
