@@ -3,7 +3,7 @@
 //! paper's Task 1/Task 2), costs that are real CPU time, and
 //! thread-per-message oversubscription under a cgroup CPU limit (the
 //! paper's object detector, Fig. 2b; needs root and cgroup v1 `cpu`).
-//! Loads are small (≤ 0.6 CPU) because the machine is shared.
+//! Loads are small (≤ 0.7 CPU) because the machine is shared.
 
 mod common;
 
@@ -34,7 +34,7 @@ fn heavy_callback_starves_a_core_callback_sharing_one_worker() {
     let env = &m.env;
     let t = |s: &str| format!("/{}", unique(s));
     let (core_in, heavy_in, core_out, heavy_out) = (t("scan"), t("image"), t("cmd_vel"), t("goal"));
-    let (p1, p2) = (format!("{core_in}:20:64"), format!("{heavy_in}:10:64"));
+    let (p1, p2) = (format!("{core_in}:50:64"), format!("{heavy_in}:10:64"));
     let _src = env.simnode(&["--name", &t("sensors"), "--publish", &p1, "--publish", &p2]);
     let listener = env.script("listen.py", &[&unique("listener"), &core_out]);
     wait_for("the listener", Duration::from_secs(20), || {
@@ -59,9 +59,11 @@ fn heavy_callback_starves_a_core_callback_sharing_one_worker() {
     eprintln!(
         "core callback rate: alone {alone:.1} Hz, sharing 1 worker {shared:.1} Hz, 2 workers {two:.1} Hz"
     );
-    assert!(alone >= 16.0, "alone {alone:.1} Hz of 20");
-    // One worker: the core callback runs about once per 60 ms heavy run
-    // (≈ 10 Hz of 20); allow up to 75 % of the alone rate.
+    assert!(alone >= 40.0, "alone {alone:.1} Hz of 50");
+    // One worker: three core messages (every 20 ms) arrive during each
+    // 60 ms heavy run and the queue of one keeps only the newest, so two of
+    // every five are lost (≈ 30 Hz of 50) whatever the phase of the two
+    // timers; allow up to 75 % of the alone rate.
     assert!(
         shared <= 0.75 * alone,
         "shared {shared:.1} vs alone {alone:.1}"
