@@ -30,6 +30,11 @@ pub struct KnobDef {
     pub target: KnobTarget,
     pub min: f64,
     pub max: f64,
+    /// Lowering this knob only takes CPU or input from a non-core app (a
+    /// non-core node's CPU, or an adaptor feeding a non-core subscriber), so it
+    /// cannot hurt a core service (see `machine::every_config_as_safe_as`).
+    #[serde(default)]
+    pub restricts_non_core: bool,
 }
 
 /// The knobs of a run, in optimizer order.
@@ -94,6 +99,7 @@ pub fn derive(
             },
             min,
             max,
+            restricts_non_core: !app.core,
         });
     }
     let a = &spec.knobs.adaptors;
@@ -120,6 +126,7 @@ pub fn derive(
             if source <= a.min_rate_hz {
                 continue;
             }
+            let restricts_non_core = apps(&e.subscriber) == Some(false);
             knobs.push(KnobDef {
                 name: adaptor_knob_name(&e.topic, &e.subscriber),
                 target: KnobTarget::Adaptor {
@@ -128,6 +135,7 @@ pub fn derive(
                 },
                 min: a.min_rate_hz,
                 max: source,
+                restricts_non_core,
             });
         }
     }
@@ -358,6 +366,31 @@ mod tests {
             let s = derive(&stack(), &spec, &graph(&running), &rates(), 2.0).unwrap();
             assert_eq!(names(&s), want, "{what}");
         }
+    }
+
+    #[test]
+    fn knobs_on_non_core_apps_say_they_only_restrict_them() {
+        let mut sp = spec();
+        sp.knobs.cpu.fix_core_nodes = false;
+        let all = ["/lidar", "/planner", "/camera", "/detector", "/web"];
+        let s = derive(&stack(), &sp, &graph(&all), &rates(), 2.0).unwrap();
+        let flags: Vec<(&str, bool)> = s
+            .knobs
+            .iter()
+            .map(|k| (k.name.as_str(), k.restricts_non_core))
+            .collect();
+        assert_eq!(
+            flags,
+            vec![
+                ("cpu:/lidar", false),
+                ("cpu:/planner", false),
+                ("cpu:/camera", true),
+                ("cpu:/detector", true),
+                ("cpu:/web", true),
+                ("rate:/image>/detector", true),
+                ("rate:/scan>/web", true),
+            ]
+        );
     }
 
     #[test]

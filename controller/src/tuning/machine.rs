@@ -586,6 +586,15 @@ fn baseline_done(
             return finish(run, env, defs, out);
         }
     };
+    let all_safe = every_config_as_safe_as(&run.knobs, &rec.x);
+    if all_safe && env.spec.tuning.safety_floor.is_some() {
+        out.push(normal(
+            "SafeExplorationOff",
+            "every knob only restricts non-core apps and the baseline restricts none: \
+             no config can starve a core service more than the baseline did"
+                .to_string(),
+        ));
+    }
     let settings = Settings {
         seed: env.spec.tuning.seed,
         max_trials: env.spec.tuning.max_trials as usize + 1,
@@ -594,6 +603,7 @@ fn baseline_done(
             .tuning
             .safety_floor
             .filter(|f| baseline_is_safe(*f, defs, &rec.eval.constraints))
+            .filter(|_| !all_safe)
             .map(|f| SafetyFloor {
                 fraction_of_target: f,
                 beta: 2.0,
@@ -639,6 +649,21 @@ pub fn baseline_is_safe(floor: f64, defs: &[MetricDef], baseline: &[f64]) -> boo
             *v <= d.target / floor
         }
     })
+}
+
+/// Whether no point of the knob space can be worse for the core services than
+/// the baseline `x`: every knob only restricts a non-core app (lowering it
+/// takes CPU or input away from non-core nodes alone) and the baseline sits at
+/// every knob's upper bound. Then the baseline is safe and so is everything
+/// below it, and safe exploration would only keep the search near the
+/// baseline — the one config already known not to be good enough.
+pub fn every_config_as_safe_as(knobs: &KnobSpace, x: &[f64]) -> bool {
+    knobs.knobs.len() == x.len()
+        && knobs
+            .knobs
+            .iter()
+            .zip(x)
+            .all(|(k, &v)| k.restricts_non_core && v >= k.max)
 }
 
 #[allow(clippy::too_many_arguments)]

@@ -736,6 +736,33 @@ fn safe_exploration_is_off_when_the_baseline_is_below_the_floor() {
 }
 
 #[test]
+fn safe_exploration_is_off_when_no_config_can_be_worse_than_the_baseline() {
+    let knob = |name: &str, restricts_non_core: bool| knobs::KnobDef {
+        name: name.into(),
+        target: knobs::KnobTarget::Cpu { node: name.into() },
+        min: 0.1,
+        max: 2.0,
+        restricts_non_core,
+    };
+    let space = |ks: Vec<knobs::KnobDef>| KnobSpace {
+        knobs: ks,
+        period_micros: 20_000,
+    };
+    let non_core = space(vec![knob("/detector", true), knob("/web", true)]);
+    assert!(every_config_as_safe_as(&non_core, &[2.0, 2.0]));
+    assert!(
+        !every_config_as_safe_as(&non_core, &[2.0, 1.0]),
+        "a limited baseline: raising /web could starve the core"
+    );
+    let with_core = space(vec![knob("/detector", true), knob("/planner", false)]);
+    assert!(
+        !every_config_as_safe_as(&with_core, &[2.0, 2.0]),
+        "lowering a core node's CPU can starve it"
+    );
+    assert!(!every_config_as_safe_as(&non_core, &[2.0]));
+}
+
+#[test]
 fn a_spec_change_while_remediating_starts_the_stopped_apps_first() {
     let mut old = with(State::Remediating {
         apps: vec!["obj".into()],
