@@ -6,7 +6,8 @@
 //!   delays a core one sharing the pool;
 //! - thread-per-message (`--thread-per-message`, like the paper's object
 //!   detector): each message gets its own thread; under a CPU limit the
-//!   threads pile up (up to `--max-threads`) and share the CPU.
+//!   threads pile up (up to `--max-threads`) and share the CPU, and with
+//!   `--contention-pct` each one pays for the others (see [`contended_cost_ms`]).
 //!
 //! [`PoolQueue`] is the pool's pure scheduling state; the rest runs threads.
 
@@ -108,8 +109,9 @@ impl Callback {
 
     /// Does the work for one message, then publishes one output message
     /// carrying the input's source stamp.
-    fn run(&self, m: &Incoming, stop: &AtomicBool) {
-        let cost = Duration::from_secs_f64(self.spec.cost_ms / 1000.0);
+    /// Burns the callback's cost times `scale`, then publishes its output.
+    fn run(&self, m: &Incoming, stop: &AtomicBool, scale: f64) {
+        let cost = Duration::from_secs_f64(self.spec.cost_ms * scale / 1000.0);
         let used = burn::burn(cost, stop);
         self.cpu_ns.fetch_add(
             u64::try_from(used.as_nanos()).unwrap_or(u64::MAX),
@@ -234,7 +236,7 @@ impl Pool {
             drop(q);
             let (i, m) = job;
             self.active.fetch_add(1, Ordering::Relaxed);
-            self.callbacks[i].run(&m, &self.stop);
+            self.callbacks[i].run(&m, &self.stop, 1.0);
             self.active.fetch_sub(1, Ordering::Relaxed);
             if let Ok(mut q) = self.queue.lock() {
                 q.done(i);
@@ -245,21 +247,38 @@ impl Pool {
     }
 }
 
+/// CPU cost of a message that starts while `others` message threads are
+/// already running: `cost_ms × (1 + pct/100 × others)`. It models what
+/// parallel inference threads do to each other's caches and memory
+/// bandwidth — the paper's "compounding penalty" of an oversubscribed
+/// detector (Fig. 2b): the more frames in flight, the more CPU each costs.
+pub fn contended_cost_ms(cost_ms: f64, others: usize, pct: f64) -> f64 {
+    cost_ms * (1.0 + pct.max(0.0) / 100.0 * others as f64)
+}
+
 /// Thread-per-message execution.
 #[derive(Debug)]
 pub struct PerMessage {
     callbacks: Vec<Arc<Callback>>,
     /// Most threads at once; 0 = unbounded.
     max_threads: usize,
+    /// Extra cost per other running message thread, in percent.
+    contention_pct: f64,
     active: Arc<AtomicUsize>,
     stop: Arc<AtomicBool>,
 }
 
 impl PerMessage {
-    pub fn new(callbacks: Vec<Arc<Callback>>, max_threads: usize, stop: Arc<AtomicBool>) -> Self {
+    pub fn new(
+        callbacks: Vec<Arc<Callback>>,
+        max_threads: usize,
+        contention_pct: f64,
+        stop: Arc<AtomicBool>,
+    ) -> Self {
         Self {
             callbacks,
             max_threads,
+            contention_pct,
             active: Arc::new(AtomicUsize::new(0)),
             stop,
         }
@@ -277,10 +296,11 @@ impl PerMessage {
             return;
         }
         let (active, stop) = (self.active.clone(), self.stop.clone());
+        let scale = contended_cost_ms(1.0, n, self.contention_pct);
         let spawned = std::thread::Builder::new()
             .name("simnode-msg".into())
             .spawn(move || {
-                cb.run(&m, &stop);
+                cb.run(&m, &stop, scale);
                 active.fetch_sub(1, Ordering::Relaxed);
             });
         if spawned.is_err() {
@@ -295,6 +315,14 @@ impl PerMessage {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn contention_scales_a_messages_cost_with_the_threads_already_running() {
+        assert_eq!(contended_cost_ms(150.0, 0, 15.0), 150.0);
+        assert!((contended_cost_ms(150.0, 9, 15.0) - 352.5).abs() < 1e-9);
+        assert_eq!(contended_cost_ms(150.0, 9, 0.0), 150.0);
+        assert_eq!(contended_cost_ms(150.0, 9, -5.0), 150.0, "no discount");
+    }
 
     fn m(tag: u8) -> Incoming {
         Incoming {

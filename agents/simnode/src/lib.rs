@@ -55,6 +55,10 @@ Semantics:
   --thread-per-message       every incoming message gets its own thread (up to
                              --max-threads, 0 = unbounded); under a CPU limit the
                              threads pile up and share the CPU (oversubscription).
+  --contention-pct P         with --thread-per-message: a message that starts while
+                             k others run costs C x (1 + P/100 x k) of CPU, so an
+                             oversubscribed detector also does less per CPU second
+                             (the paper's compounding penalty, Fig. 2b).
 Costs are CPU time (CLOCK_THREAD_CPUTIME_ID), never sleeps: under cgroup throttling
 wall time stretches and rates fall. Messages are std_msgs/UInt8MultiArray; the data
 array starts with seq (u64 LE) and the source stamp (ns since epoch, u64 LE).
@@ -68,7 +72,7 @@ Examples:
   configbot simnode --name /navigation --workers 2 \\
       --on '/scan->/cmd_vel:cost-ms=9' --on '/image->/goal_image:cost-ms=25'
   # an object detector that spawns a thread per camera frame
-  configbot simnode --name /detector --thread-per-message \\
+  configbot simnode --name /detector --thread-per-message --contention-pct 15 \\
       --on '/image->/detections:cost-ms=150,bytes=256'
   # watch them with the real tools
   rostopic hz /cmd_vel; rosnode info /navigation
@@ -99,6 +103,16 @@ pub struct SimnodeArgs {
     /// With --thread-per-message: most threads at once; messages beyond are dropped (0 = unbounded).
     #[arg(long, value_name = "N", default_value_t = 10)]
     pub max_threads: usize,
+    /// With --thread-per-message: each message costs PCT % more CPU per other
+    /// message thread running when it starts (cache and memory-bandwidth
+    /// contention between parallel inference threads).
+    #[arg(
+        long,
+        value_name = "PCT",
+        default_value_t = 0.0,
+        requires = "thread_per_message"
+    )]
+    pub contention_pct: f64,
     /// ROS master URI.
     #[arg(
         long,
@@ -152,6 +166,7 @@ impl SimnodeArgs {
                 Some(self.workers.unwrap_or(1) as usize)
             },
             max_threads: self.max_threads,
+            contention_pct: self.contention_pct,
             stats_every: self
                 .stats_secs
                 .filter(|s| s.is_finite() && *s > 0.0)

@@ -32,6 +32,8 @@ pub struct NodeConfig {
     /// `None` = thread-per-message.
     pub workers: Option<usize>,
     pub max_threads: usize,
+    /// Thread-per-message: extra cost per other running message, in percent.
+    pub contention_pct: f64,
     pub stats_every: Option<Duration>,
     pub call_timeout: Duration,
 }
@@ -151,6 +153,7 @@ pub async fn run_node(cfg: NodeConfig) -> Result<(), SimnodeError> {
         None => Dispatcher::PerMessage(Arc::new(PerMessage::new(
             callbacks,
             cfg.max_threads,
+            cfg.contention_pct,
             stop.clone(),
         ))),
     });

@@ -231,3 +231,51 @@ fn thread_per_message_threads_pile_up_under_a_cpu_limit() {
     );
     drop(detector);
 }
+
+#[test]
+fn contention_makes_an_oversubscribed_detector_pay_more_cpu_per_frame() {
+    if !ros_available() {
+        return;
+    }
+    let Some(cg) = Cgroup::create(20_000) else {
+        eprintln!(
+            "SKIPPED: cannot create a cgroup under /sys/fs/cgroup/cpu (needs root, cgroup v1 cpu)"
+        );
+        return;
+    };
+    let m = Master::start(MasterKind::Configbot);
+    let env = &m.env;
+    let t = |s: &str| format!("/{}", unique(s));
+    let (img, det) = (t("image"), t("detections"));
+    let on = format!("{img}->{det}:cost-ms=40,bytes=128");
+    let detector = env.simnode(&[
+        "--name",
+        &t("detector"),
+        "--thread-per-message",
+        "--contention-pct",
+        "20",
+        "--on",
+        &on,
+    ]);
+    cg.add(detector.pid());
+    let listener = env.script("listen.py", &[&unique("listener"), &det]);
+    wait_for("the listener", Duration::from_secs(20), || {
+        listener.has_line("ready")
+    });
+    let spec = format!("{img}:10:1024");
+    let _camera = env.simnode(&["--name", &t("camera"), "--publish", &spec]);
+    // 0.2 CPU against 10 Hz × 40 ms: ten threads pile up, so each frame
+    // starts with about nine others running and costs 40 × (1 + 0.2 × 9) ms.
+    wait_more(&listener, 3, "detections");
+    std::thread::sleep(Duration::from_secs(2));
+    let c0 = cpu_time(detector.pid());
+    let (rate, msgs) = rate_over(&listener, 6.0);
+    let c1 = cpu_time(detector.pid());
+    let per_frame = (c1 - c0).as_secs_f64() * 1000.0 / msgs.len().max(1) as f64;
+    eprintln!("contended detector at 0.2 CPU: {rate:.1} Hz, {per_frame:.0} ms of CPU per frame");
+    assert!(msgs.len() >= 4, "only {} detections in 6 s", msgs.len());
+    // Without contention: 40 ms per frame, 5 Hz.
+    assert!(per_frame >= 70.0, "{per_frame:.0} ms of CPU per frame");
+    assert!(rate <= 3.5, "contended detector {rate:.1} Hz");
+    drop(detector);
+}
