@@ -181,15 +181,19 @@ pub async fn run(a: &DemoArgs) -> anyhow::Result<ExitCode> {
         std::fs::remove_dir_all(&state)?;
     }
     let robot = PrivateRobot::start(&state).await?;
-    let result = demo(a, &robot, &stack, &spec, &out).await;
-    if a.keep {
+    // Ctrl-C or SIGTERM mid-run still stops the nodes and removes the cgroups.
+    let result = tokio::select! {
+        r = demo(a, &robot, &stack, &spec, &out) => r,
+        _ = super::shutdown_signal() => Err(anyhow::anyhow!("interrupted")),
+    };
+    if a.keep && result.is_ok() {
         println!(
             "\nThe stack keeps running: configbot --server unix://{} get trials {}   (ROS_MASTER_URI={}; Ctrl-C to stop)",
             robot.dir.join("configbot.sock").display(),
             spec.metadata.name,
             robot.master_uri
         );
-        let _ = tokio::signal::ctrl_c().await;
+        super::shutdown_signal().await;
     }
     println!("==> stopping the stack and removing its cgroups");
     robot.close().await?;
