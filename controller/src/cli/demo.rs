@@ -172,7 +172,7 @@ pub async fn run(a: &DemoArgs) -> anyhow::Result<ExitCode> {
     println!(
         "==> ConfigBot demo: {} on this machine ({} CPUs)",
         a.stack,
-        cpus()
+        crate::tuning::runner::machine_cpus()
     );
     println!("    report folder {}", out.display());
     // A fresh robot every time: no stack, registrations or library from a previous run.
@@ -492,10 +492,6 @@ pub fn histogram_chart(core: &MetricDef, before: &MeasureReport, after: &Measure
         bar_width: width,
         y_from_zero: true,
     }
-}
-
-fn cpus() -> usize {
-    std::thread::available_parallelism().map_or(1, |n| n.get())
 }
 
 #[cfg(test)]

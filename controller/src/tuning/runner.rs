@@ -543,7 +543,8 @@ impl Runner {
     }
 }
 
-fn machine_cpus() -> f64 {
+/// CPUs this process may run on.
+pub(crate) fn machine_cpus() -> f64 {
     std::thread::available_parallelism().map_or(1.0, |n| n.get() as f64)
 }
 
