@@ -24,7 +24,7 @@ use serde_json::Value;
 
 use super::demo::{
     PrivateRobot, example, histogram_chart, measure_defs, print_eval, print_trial, progress_chart,
-    settled, wait_for_flow,
+    settled,
 };
 use crate::tuning::knobs;
 use crate::tuning::measure::{self, Evaluation, MetricDef};
@@ -187,7 +187,7 @@ fn plan(a: &BenchArgs) -> Plan {
     if a.quick {
         Plan {
             stacks: vec!["basic-nav".into()],
-            cross_on: vec!["terrain-nav".into()],
+            cross_on: vec!["basic-nav".into(), "terrain-nav".into()],
             window: 5,
             random: 1,
             switch_at: 15,
@@ -262,6 +262,8 @@ fn fresh_dir(out: &Path, stack: &str, method: &str) -> anyhow::Result<PathBuf> {
     Ok(d)
 }
 
+/// A fresh robot running `stack`, once every metric's topic has delivered
+/// messages; on failure the robot is closed (nodes stopped, cgroups removed).
 async fn start(
     out: &Path,
     name: &str,
@@ -270,14 +272,60 @@ async fn start(
     defs: &[MetricDef],
 ) -> anyhow::Result<PrivateRobot> {
     let robot = PrivateRobot::start(&fresh_dir(out, name, method)?).await?;
-    robot
-        .apply(&serde_json::to_value(stack)?, Kind::RobotStack)
-        .await?;
-    anyhow::ensure!(
-        wait_for_flow(robot.robot.as_ref(), defs, Duration::from_secs(60)).await,
-        "{name}: topics did not flow within 60 s"
-    );
-    Ok(robot)
+    let up = async {
+        robot
+            .apply(&serde_json::to_value(stack)?, Kind::RobotStack)
+            .await?;
+        let silent = wait_until_up(robot.robot.as_ref(), defs, FLOW_TIMEOUT).await;
+        anyhow::ensure!(
+            silent.is_empty(),
+            "{name}: no messages on {} within {} s (logs: {})",
+            silent.join(", "),
+            FLOW_TIMEOUT.as_secs(),
+            robot.dir.join("agent/logs").display()
+        );
+        anyhow::Ok(())
+    }
+    .await;
+    match up {
+        Ok(()) => Ok(robot),
+        Err(e) => {
+            robot.close().await?;
+            Err(e)
+        }
+    }
+}
+
+/// How long a fresh stack may take until every metric's topic has flowed.
+const FLOW_TIMEOUT: Duration = Duration::from_secs(90);
+
+/// Measures 1 s windows until each of `defs` has delivered messages in at
+/// least one of them (a loaded machine may starve a topic for a second, so
+/// not all in the same window); returns the metrics that never did.
+async fn wait_until_up(robot: &dyn Robot, defs: &[MetricDef], timeout: Duration) -> Vec<String> {
+    let deadline = Instant::now() + timeout;
+    let mut flowed = std::collections::BTreeSet::new();
+    loop {
+        if let Ok(r) = measure_defs(robot, defs, 1).await {
+            flowed.extend(flowing(defs, &r));
+        }
+        let silent: Vec<String> = defs
+            .iter()
+            .filter(|d| !flowed.contains(&d.name))
+            .map(|d| d.name.clone())
+            .collect();
+        if silent.is_empty() || Instant::now() >= deadline {
+            return silent;
+        }
+    }
+}
+
+/// The metrics whose probe saw messages in `r` (pure).
+fn flowing(defs: &[MetricDef], r: &configbot_agent::measure::MeasureReport) -> Vec<String> {
+    defs.iter()
+        .filter(|d| r.series.iter().any(|s| s.probe == d.probe && s.mean > 0.0))
+        .map(|d| d.name.clone())
+        .collect()
 }
 
 fn result(
@@ -526,6 +574,43 @@ mod tests {
             (u.first_feasible_seconds, u.final_trial_seconds),
             (None, None)
         );
+    }
+
+    #[test]
+    fn a_topic_flows_when_its_probe_saw_messages() {
+        use configbot_agent::measure::{MeasureReport, Probe, ProbeSeries};
+        let def = |name: &str, topic: &str| MetricDef {
+            name: name.into(),
+            app: "a".into(),
+            probe: Probe::TopicRate {
+                topic: topic.into(),
+                subscriber: None,
+            },
+            at_least: true,
+            target: 1.0,
+            core: true,
+            weight: 1.0,
+        };
+        let defs = [
+            def("cmd", "/cmd_vel"),
+            def("det", "/det"),
+            def("web", "/web"),
+        ];
+        let series = |topic: &str, mean: f64| ProbeSeries {
+            probe: Probe::TopicRate {
+                topic: topic.into(),
+                subscriber: None,
+            },
+            values: vec![mean],
+            mean,
+        };
+        let r = MeasureReport {
+            started_unix_ms: 0,
+            duration_ms: 1000,
+            sub_window_ms: 1000,
+            series: vec![series("/cmd_vel", 40.0), series("/det", 0.0)],
+        };
+        assert_eq!(flowing(&defs, &r), ["cmd"]);
     }
 
     #[test]
