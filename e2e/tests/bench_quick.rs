@@ -5,34 +5,89 @@
 //! SVG plots that are well-formed XML. Not the numbers: the example stacks
 //! are calibrated elsewhere and the machine is shared.
 //!
-//! The bench makes its own robot (cgroup root `configbot-demo-<its pid>`);
-//! the test checks that the bench removed it and its processes, and removes
-//! them itself if the bench failed or was killed.
+//! The bench makes its own robots (cgroup root `configbot-demo-<its pid>`);
+//! the test checks that the bench removed them and their processes, and
+//! removes them itself if the bench failed or was killed. As for the other
+//! scenarios ([`common::ROBOT_SHARES`]), the bench process (control plane,
+//! ROS master, meters) runs in a `configbot-e2e-<pid>-bench` cpu cgroup and
+//! its robot's root gets high `cpu.shares`, so a busy shared machine does
+//! not starve the robot it measures.
 
 mod common;
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
 use serde_json::Value;
 
 /// The bench process; killed, and its cgroups and nodes removed, on drop.
-struct Bench(Child);
+struct Bench {
+    child: Child,
+    /// Its own cpu cgroup (`configbot-e2e-<test pid>-bench`), if there is a cpu hierarchy.
+    ctl: Option<PathBuf>,
+}
 
 impl Bench {
+    fn start(out: &Path, log: &Path) -> Bench {
+        let cpu = configbot_cgroups::Layout::detect()
+            .ok()
+            .and_then(|l| l.v1_cpu);
+        let ctl = cpu.map(|c| c.join(format!("{}-bench", common::unique_root())));
+        if let Some(d) = &ctl {
+            std::fs::create_dir_all(d).expect("create the bench's cpu cgroup");
+            std::fs::write(d.join("cpu.shares"), common::ROBOT_SHARES.to_string())
+                .expect("set cpu.shares");
+        }
+        let child = Command::new(common::configbot_bin())
+            .args(["bench", "--quick", "--out"])
+            .arg(out)
+            .env("ROS_HOSTNAME", "localhost")
+            .stdout(std::fs::File::create(log).expect("log"))
+            .stderr(Stdio::inherit())
+            .spawn()
+            .expect("start configbot bench");
+        let b = Bench { child, ctl };
+        if let Some(d) = &b.ctl {
+            std::fs::write(d.join("cgroup.procs"), b.child.id().to_string())
+                .expect("move the bench into its cgroup");
+        }
+        b
+    }
+
     fn root(&self) -> String {
-        format!("configbot-demo-{}", self.0.id())
+        format!("configbot-demo-{}", self.child.id())
+    }
+
+    /// Gives the bench's current robot root high `cpu.shares` (each robot
+    /// of the bench creates it anew).
+    fn prioritise_robot(&self) {
+        let Some(cpu) = configbot_cgroups::Layout::detect()
+            .ok()
+            .and_then(|l| l.v1_cpu)
+        else {
+            return;
+        };
+        let shares = cpu.join(self.root()).join("cpu.shares");
+        let want = common::ROBOT_SHARES.to_string();
+        if let Ok(now) = std::fs::read_to_string(&shares)
+            && now.trim() != want
+        {
+            let _ = std::fs::write(&shares, &want);
+        }
     }
 }
 
 impl Drop for Bench {
     fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
+        let _ = self.child.kill();
+        let _ = self.child.wait();
         common::nuke(&self.root());
         for dir in cgroup_dirs(&self.root()) {
             let _ = std::fs::remove_dir(dir);
+        }
+        if let Some(d) = &self.ctl {
+            let _ = std::fs::remove_dir(d);
         }
     }
 }
@@ -240,22 +295,14 @@ fn quick_bench_writes_every_table_and_plot() {
     let started = Instant::now();
     let out = tempfile::tempdir().expect("temp dir");
     let log = out.path().join("bench.log");
-    let mut bench = Bench(
-        Command::new(common::configbot_bin())
-            .args(["bench", "--quick", "--out"])
-            .arg(out.path())
-            .env("ROS_HOSTNAME", "localhost")
-            .stdout(std::fs::File::create(&log).expect("log"))
-            .stderr(Stdio::inherit())
-            .spawn()
-            .expect("start configbot bench"),
-    );
+    let mut bench = Bench::start(out.path(), &log);
     let root = bench.root();
     let deadline = Instant::now() + Duration::from_secs(420);
     let status = loop {
-        if let Some(s) = bench.0.try_wait().expect("wait") {
+        if let Some(s) = bench.child.try_wait().expect("wait") {
             break s;
         }
+        bench.prioritise_robot();
         assert!(
             Instant::now() < deadline,
             "bench --quick still running after 420 s:\n{}",

@@ -138,6 +138,13 @@ pub fn tuning_cost(status: &Value, seen: &[f64], settled_secs: f64) -> TuningCos
     }
 }
 
+/// Whether the run has reached its outcome with the config it keeps applied:
+/// the demo's settled check, and for Unsat also the safest config applied
+/// (status shows it as `bestConfig` once it is monitored) (pure).
+pub fn outcome(st: &Value) -> bool {
+    settled(st) && st["bestConfig"].is_object()
+}
+
 /// Follows a spec's tuning run from `started` (when it was applied):
 /// prints each new trial, notes when each trial first appears in the status,
 /// and returns the settled status, those seconds and the seconds to settle.
@@ -158,7 +165,7 @@ pub async fn follow(
             print_trial(&st, t);
             seen.push(now);
         }
-        if settled(&st) {
+        if outcome(&st) {
             return Ok((st, seen, now));
         }
         anyhow::ensure!(
@@ -574,6 +581,14 @@ mod tests {
             (u.first_feasible_seconds, u.final_trial_seconds),
             (None, None)
         );
+    }
+
+    #[test]
+    fn unsat_is_an_outcome_once_its_config_is_applied() {
+        assert!(outcome(&settled_status()));
+        assert!(!outcome(&json!({"phase": "Unsat"})));
+        assert!(outcome(&json!({"phase": "Unsat", "bestConfig": {}})));
+        assert!(!outcome(&json!({"phase": "Trials", "bestConfig": {}})));
     }
 
     #[test]

@@ -21,8 +21,8 @@ use configbot_manifests::Kind;
 use hyper::Method;
 use serde::Serialize;
 
-use super::{BenchArgs, Plan, example_for, follow, start};
-use crate::cli::demo::{PrivateRobot, measure_defs, settled};
+use super::{BenchArgs, Plan, example_for, follow, outcome, start};
+use crate::cli::demo::{PrivateRobot, measure_defs};
 use crate::report::svg::{Chart, Mark, Rule, Series, colors};
 use crate::robot::EmbeddedRobot;
 use crate::store::Store;
@@ -77,7 +77,8 @@ pub struct Moments {
     pub at: f64,
     /// When the run first showed the context it settled in.
     pub detected: Option<f64>,
-    /// When it settled (config applied and verified: Monitoring; or Unsat).
+    /// When it settled: config applied and verified (Monitoring), or the
+    /// safest config applied (Unsat).
     pub applied: Option<f64>,
     /// `detected - at`.
     pub detection_seconds: Option<f64>,
@@ -359,7 +360,7 @@ async fn watch(
                 uid: o["metadata"]["uid"].as_str().unwrap_or("").into(),
                 phase: st["phase"].as_str().unwrap_or("").into(),
                 context: st["context"].as_str().map(str::to_string),
-                settled: settled(st),
+                settled: outcome(st),
                 tuned_reason: st["conditions"]
                     .as_array()
                     .and_then(|c| c.iter().find(|c| c["type"] == "Tuned"))
