@@ -417,8 +417,13 @@ async fn until(t0: Instant, secs: f64) {
 
 /// Runs the context switch on a fresh robot.
 pub async fn run(a: &BenchArgs, p: &Plan) -> anyhow::Result<Timeline> {
-    let (basic, basic_spec) = example_for("basic-nav", p)?;
-    let (terrain, terrain_spec) = example_for("terrain-nav", p)?;
+    let (basic, mut basic_spec) = example_for("basic-nav", p)?;
+    let (terrain, mut terrain_spec) = example_for("terrain-nav", p)?;
+    if let Some(m) = p.timeline_trials {
+        for s in [&mut basic_spec, &mut terrain_spec] {
+            s.spec.tuning.max_trials = s.spec.tuning.max_trials.min(m);
+        }
+    }
     let defs = measure::metric_defs(&basic.spec, &basic_spec.spec);
     let core = defs
         .iter()
