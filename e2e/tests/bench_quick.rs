@@ -241,7 +241,10 @@ fn check_timeline(t: &Value, out: &Path) {
         assert!(at > last_at, "{key} at {at} after {last_at}");
         let applied = secs(&m["applied"], &format!("{key} applied"));
         let detected = secs(&m["detected"], &format!("{key} detected"));
-        assert!(at <= detected && detected <= applied, "{key}: {m}");
+        let up = secs(&m["stackUp"], "stackUp");
+        let spec = secs(&m["specApplied"], "specApplied");
+        assert!(at <= up && up <= spec, "{key}: {m}");
+        assert!(spec <= detected && detected <= applied, "{key}: {m}");
         assert!(
             (secs(&m["settleSeconds"], "settleSeconds") - (applied - at)).abs() < 1e-6,
             "{m}"

@@ -116,8 +116,13 @@ pub fn matrix_table(entries: &[CrossEntry]) -> String {
             row
         })
         .collect();
+    let names: Vec<&str> = entries
+        .first()
+        .map(|e| e.non_core.keys().map(String::as_str).collect())
+        .unwrap_or_default();
     let mut out = format!(
-        "Cross-evaluation (satisfaction / non-core Hz; * = tuned on that stack):\n{}",
+        "Cross-evaluation (satisfaction / non-core Hz: {}; * = tuned on that stack):\n{}",
+        names.join(","),
         crate::table::render(&headers, &body)
     );
     for e in entries.iter().filter(|e| !e.dropped.is_empty()) {

@@ -318,7 +318,7 @@ async fn start(
 }
 
 /// How long a fresh stack may take until every core metric's topic has flowed.
-const FLOW_TIMEOUT: Duration = Duration::from_secs(90);
+pub(super) const FLOW_TIMEOUT: Duration = Duration::from_secs(90);
 /// How long to wait for non-core topics once the core ones flow: a default
 /// config may starve a non-core app for good (Terrain-NAV's dashboard).
 const NON_CORE_GRACE: Duration = Duration::from_secs(20);
@@ -327,7 +327,7 @@ const NON_CORE_GRACE: Duration = Duration::from_secs(20);
 /// least one of them (a loaded machine may starve a topic for a second, so
 /// not all in the same window), or the core ones have and the non-core ones
 /// had [`NON_CORE_GRACE`]; returns the metrics that never did.
-async fn wait_until_up(robot: &dyn Robot, defs: &[MetricDef]) -> Vec<String> {
+pub(super) async fn wait_until_up(robot: &dyn Robot, defs: &[MetricDef]) -> Vec<String> {
     let started = Instant::now();
     let mut flowed = std::collections::BTreeSet::new();
     loop {

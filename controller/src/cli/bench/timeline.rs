@@ -27,6 +27,7 @@ use crate::report::svg::{Chart, Mark, Rule, Series, colors};
 use crate::robot::EmbeddedRobot;
 use crate::store::Store;
 use crate::tuning::measure::{self, MetricDef};
+use crate::tuning::robot::Robot;
 
 /// Status and event poll interval of [`watch`].
 pub const WATCH: Duration = Duration::from_millis(100);
@@ -73,14 +74,18 @@ pub struct Second {
 #[serde(rename_all = "camelCase")]
 pub struct Moments {
     pub spec: String,
-    /// When the stack and spec were applied.
+    /// The switch: when the user changed the robot's stack (0 for the first run).
     pub at: f64,
+    /// When the robot ran the new stack (its nodes up, its core topics flowing).
+    pub stack_up: f64,
+    /// When the user applied the spec (once the stack was up, as a user would).
+    pub spec_applied: f64,
     /// When the run first showed the context it settled in.
     pub detected: Option<f64>,
     /// When it settled: config applied and verified (Monitoring), or the
     /// safest config applied (Unsat).
     pub applied: Option<f64>,
-    /// `detected - at`.
+    /// `detected - spec_applied`: how long the loop took to see the context.
     pub detection_seconds: Option<f64>,
     /// `applied - at`: relearn time, or reuse time when `reused`.
     pub settle_seconds: Option<f64>,
@@ -118,12 +123,26 @@ pub struct Timeline {
     pub svg: String,
 }
 
-/// The moments of `spec`'s run applied at `at` (pure): the first sample at
-/// or after `at` that settled, and the first that showed its context.
-pub fn moments(samples: &[Sample], events: &[SeenEvent], spec: &str, at: f64) -> Moments {
+/// When a switch happened: the stack change, the stack up, the spec applied.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Switch {
+    pub at: f64,
+    pub stack_up: f64,
+    pub spec_applied: f64,
+}
+
+/// The moments of `spec`'s run after switch `w` (pure): the first sample at
+/// or after the spec was applied that settled, and the first that showed
+/// the context it settled in.
+pub fn moments(samples: &[Sample], events: &[SeenEvent], spec: &str, w: Switch) -> Moments {
+    let Switch {
+        at,
+        stack_up,
+        spec_applied,
+    } = w;
     let mine: Vec<&Sample> = samples
         .iter()
-        .filter(|s| s.spec == spec && s.t >= at)
+        .filter(|s| s.spec == spec && s.t >= spec_applied)
         .collect();
     let done = mine.iter().find(|s| s.settled);
     let detected = match done {
@@ -135,13 +154,15 @@ pub fn moments(samples: &[Sample], events: &[SeenEvent], spec: &str, at: f64) ->
     };
     let hit = events
         .iter()
-        .any(|e| e.spec == spec && e.t >= at && e.reason == "LibraryHit");
+        .any(|e| e.spec == spec && e.t >= spec_applied && e.reason == "LibraryHit");
     Moments {
         spec: spec.into(),
         at,
+        stack_up,
+        spec_applied,
         detected,
         applied: done.map(|s| s.t),
-        detection_seconds: detected.map(|d| d - at),
+        detection_seconds: detected.map(|d| d - spec_applied),
         settle_seconds: done.map(|s| s.t - at),
         reused: hit && done.is_some_and(|s| s.tuned_reason.as_deref() == Some("LibraryConfig")),
         trials: done.map_or(0, |s| s.trials),
@@ -279,8 +300,9 @@ pub fn summary(t: &Timeline) -> String {
         ("switch back to basic-nav", &t.back_to_basic),
     ] {
         out.push_str(&format!(
-            "  {label} at {:.1} s: context observed after {}, {} after {} ({} trials, {})\n",
+            "  {label} at {:.1} s: stack up after {}, spec applied, context observed {} later, {} {} after the switch ({} trials, {})\n",
             m.at,
+            opt(Some(m.stack_up - m.at)),
             opt(m.detection_seconds),
             if m.reused {
                 "library config reused"
@@ -407,6 +429,46 @@ async fn delete(robot: &PrivateRobot, kind: Kind, name: &str) -> anyhow::Result<
     Ok(())
 }
 
+/// Waits until the robot runs `stack` — the agent has its nodes, each is in
+/// the ROS graph, and its core topics flow — as a user switching stacks
+/// would before applying the new stack's spec.
+async fn wait_for_stack(
+    robot: &PrivateRobot,
+    stack: &configbot_manifests::RobotStack,
+    defs: &[MetricDef],
+) -> anyhow::Result<()> {
+    let want: std::collections::BTreeSet<String> =
+        stack.spec.nodes().map(|(_, n)| n.name.clone()).collect();
+    let deadline = Instant::now() + super::FLOW_TIMEOUT;
+    loop {
+        let agent = robot.robot.runtime().agent().stack();
+        let have: std::collections::BTreeSet<String> = configbot_agent::state::stack_nodes(&agent)
+            .iter()
+            .map(|n| n.as_str().to_string())
+            .collect();
+        let graph = robot.robot.graph().await?;
+        if have == want && want.iter().all(|n| graph.nodes.contains_key(n)) {
+            break;
+        }
+        anyhow::ensure!(
+            Instant::now() < deadline,
+            "the robot did not run {} within {} s",
+            stack.metadata.name,
+            super::FLOW_TIMEOUT.as_secs()
+        );
+        tokio::time::sleep(WATCH).await;
+    }
+    let core: Vec<MetricDef> = defs.iter().filter(|d| d.core).cloned().collect();
+    let silent = super::wait_until_up(robot.robot.as_ref(), &core).await;
+    anyhow::ensure!(
+        silent.is_empty(),
+        "{}: no messages on {} after the switch",
+        stack.metadata.name,
+        silent.join(", ")
+    );
+    Ok(())
+}
+
 /// Sleeps until `secs` after `t0`.
 async fn until(t0: Instant, secs: f64) {
     let left = secs - t0.elapsed().as_secs_f64();
@@ -457,25 +519,39 @@ pub async fn run(a: &BenchArgs, p: &Plan) -> anyhow::Result<Timeline> {
         until(t0, (p.switch_at as f64).max(s + p.hold as f64)).await;
 
         println!("==> timeline: switching the robot to terrain-nav");
-        let sw1 = Instant::now();
+        let at = Instant::now();
         delete(&robot, Kind::PerformanceSpec, &basic_spec.metadata.name).await?;
         robot
             .apply(&serde_json::to_value(&terrain)?, Kind::RobotStack)
             .await?;
+        wait_for_stack(&robot, &terrain, &defs).await?;
+        let up = Instant::now();
         robot
             .apply(&serde_json::to_value(&terrain_spec)?, Kind::PerformanceSpec)
             .await?;
-        let (_, _, s) = follow(&robot, &terrain_spec.metadata.name, sw1, timeout).await?;
-        until(sw1, s + p.hold as f64).await;
+        let sw1 = Switch {
+            at: since(at),
+            stack_up: since(up),
+            spec_applied: since(Instant::now()),
+        };
+        let (_, _, s) = follow(&robot, &terrain_spec.metadata.name, at, timeout).await?;
+        until(at, s + p.hold as f64).await;
 
         println!("==> timeline: switching the robot back to basic-nav");
-        let sw2 = Instant::now();
+        let at = Instant::now();
         delete(&robot, Kind::PerformanceSpec, &terrain_spec.metadata.name).await?;
         delete(&robot, Kind::RobotStack, &terrain.metadata.name).await?;
+        wait_for_stack(&robot, &basic, &defs).await?;
+        let up = Instant::now();
         robot.apply(&basic_json, Kind::PerformanceSpec).await?;
-        let (_, _, s) = follow(&robot, &basic_spec.metadata.name, sw2, timeout).await?;
-        until(sw2, s + p.hold as f64).await;
-        anyhow::Ok((since(sw1), since(sw2)))
+        let sw2 = Switch {
+            at: since(at),
+            stack_up: since(up),
+            spec_applied: since(Instant::now()),
+        };
+        let (_, _, s) = follow(&robot, &basic_spec.metadata.name, at, timeout).await?;
+        until(at, s + p.hold as f64).await;
+        anyhow::Ok((sw1, sw2))
     }
     .await;
     stop.store(true, Ordering::Relaxed);
@@ -485,7 +561,12 @@ pub async fn run(a: &BenchArgs, p: &Plan) -> anyhow::Result<Timeline> {
     let reports = recorded?;
     let (samples, events) = watched?;
     let secs = seconds(&reports, &core, &defs, t0_ms);
-    let initial = moments(&samples, &events, &basic_spec.metadata.name, 0.0);
+    let start = Switch {
+        at: 0.0,
+        stack_up: 0.0,
+        spec_applied: 0.0,
+    };
+    let initial = moments(&samples, &events, &basic_spec.metadata.name, start);
     let to_terrain = moments(&samples, &events, &terrain_spec.metadata.name, sw1);
     let back = moments(&samples, &events, &basic_spec.metadata.name, sw2);
     let mut cuts = vec![("basic-nav: tuning".to_string(), 0.0)];
@@ -495,10 +576,10 @@ pub async fn run(a: &BenchArgs, p: &Plan) -> anyhow::Result<Timeline> {
         }
     };
     cut("basic-nav: tuned", initial.applied);
-    cut("terrain-nav: relearning", Some(sw1));
+    cut("terrain-nav: switching, tuning", Some(sw1.at));
     cut("terrain-nav: tuned", to_terrain.applied);
-    cut("basic-nav: back, verifying", Some(sw2));
-    cut("basic-nav: back, applied", back.applied);
+    cut("basic-nav again: switching", Some(sw2.at));
+    cut("basic-nav again: settled", back.applied);
     let svg = a.out.join("timeline.svg");
     let t = Timeline {
         core_metric: core.name.clone(),
@@ -568,21 +649,30 @@ mod tests {
             ),
         ];
         let events = vec![ev(100.2, "basic", "LibraryHit")];
-        let first = moments(&samples, &events, "basic", 0.0);
+        let w = |at: f64, up: f64| Switch {
+            at,
+            stack_up: up,
+            spec_applied: up,
+        };
+        let first = moments(&samples, &events, "basic", w(0.0, 0.0));
         assert_eq!((first.detected, first.applied), (Some(1.0), Some(20.0)));
         assert!(!first.reused, "the first run learned its config");
         // Detected when the run showed the context it settled in, not a partial one.
-        let t = moments(&samples, &events, "terrain", 50.0);
+        let t = moments(&samples, &events, "terrain", w(49.0, 50.0));
         assert_eq!(t.detected, Some(51.0));
         assert!((t.detection_seconds.unwrap() - 1.0).abs() < 1e-9);
-        assert_eq!(t.settle_seconds, Some(30.0));
+        assert_eq!(
+            t.settle_seconds,
+            Some(31.0),
+            "from the switch, not the spec"
+        );
         assert_eq!(t.phase, "Monitoring");
         // Back: only samples after the second switch count.
-        let b = moments(&samples, &events, "basic", 100.0);
+        let b = moments(&samples, &events, "basic", w(99.0, 100.0));
         assert_eq!((b.detected, b.applied), (Some(100.2), Some(106.0)));
         assert!(b.reused);
         // Never settled: no applied moment, the first context seen is the detection.
-        let n = moments(&samples[..4], &[], "terrain", 50.0);
+        let n = moments(&samples[..4], &[], "terrain", w(50.0, 50.0));
         assert_eq!(
             (n.detected, n.applied, n.phase.as_str()),
             (Some(50.4), None, "")
@@ -641,6 +731,8 @@ mod tests {
         let m = |at: f64, d: Option<f64>, a: Option<f64>, reused: bool| Moments {
             spec: "x".into(),
             at,
+            stack_up: at,
+            spec_applied: at,
             detected: d,
             applied: a,
             detection_seconds: None,
