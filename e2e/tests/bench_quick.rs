@@ -285,7 +285,7 @@ fn check_timeline(t: &Value, out: &Path) {
         }
     }
     assert!(!t["samples"].as_array().expect("samples").is_empty());
-    assert!(t["events"].is_array());
+    assert!(t["events"].is_array() && t["notes"].is_array());
     assert_eq!(
         Path::new(t["svg"].as_str().expect("svg")),
         out.join("timeline.svg")

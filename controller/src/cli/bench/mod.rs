@@ -287,7 +287,7 @@ async fn start(
         robot
             .apply(&serde_json::to_value(stack)?, Kind::RobotStack)
             .await?;
-        let silent = wait_until_up(robot.robot.as_ref(), defs).await;
+        let silent = wait_until_up(robot.robot.as_ref(), defs, FLOW_TIMEOUT).await;
         let core_silent: Vec<&String> = silent
             .iter()
             .filter(|n| defs.iter().any(|d| d.core && &d.name == *n))
@@ -326,18 +326,24 @@ const NON_CORE_GRACE: Duration = Duration::from_secs(20);
 /// Measures 1 s windows until each of `defs` has delivered messages in at
 /// least one of them (a loaded machine may starve a topic for a second, so
 /// not all in the same window), or the core ones have and the non-core ones
-/// had [`NON_CORE_GRACE`]; returns the metrics that never did.
-pub(super) async fn wait_until_up(robot: &dyn Robot, defs: &[MetricDef]) -> Vec<String> {
+/// had [`NON_CORE_GRACE`], or `timeout` passed; returns the metrics that
+/// never did.
+pub(super) async fn wait_until_up(
+    robot: &dyn Robot,
+    defs: &[MetricDef],
+    timeout: Duration,
+) -> Vec<String> {
     let started = Instant::now();
     let mut flowed = std::collections::BTreeSet::new();
     loop {
-        if let Ok(r) = measure_defs(robot, defs, 1).await {
-            flowed.extend(flowing(defs, &r));
+        match measure_defs(robot, defs, 1).await {
+            Ok(r) => flowed.extend(flowing(defs, &r)),
+            Err(_) => tokio::time::sleep(Duration::from_secs(1)).await,
         }
         let silent: Vec<&MetricDef> = defs.iter().filter(|d| !flowed.contains(&d.name)).collect();
         let core_up = silent.iter().all(|d| !d.core);
         let waited = started.elapsed();
-        if silent.is_empty() || (core_up && waited >= NON_CORE_GRACE) || waited >= FLOW_TIMEOUT {
+        if silent.is_empty() || (core_up && waited >= NON_CORE_GRACE) || waited >= timeout {
             return silent.iter().map(|d| d.name.clone()).collect();
         }
     }
