@@ -292,30 +292,11 @@ pub async fn wait_for_outcome(
         let st = obj["status"].clone();
         let trials = st["trialHistory"].as_array().cloned().unwrap_or_default();
         for t in trials.iter().skip(shown) {
-            println!(
-                "    trial {:>2}/{}  satisfaction {:>5.1}%  objective {:>5}  {}  {}",
-                t["index"].as_u64().unwrap_or(0) + 1,
-                st["maxTrials"].as_u64().unwrap_or(0),
-                t["satisfaction"].as_f64().unwrap_or(0.0) * 100.0,
-                t["objective"]
-                    .as_f64()
-                    .map_or("-".into(), |o| format!("{o:.3}")),
-                if t["feasible"].as_bool() == Some(true) {
-                    "feasible  "
-                } else {
-                    "infeasible"
-                },
-                crate::tuning::view::config_text(&t["config"]),
-            );
+            print_trial(&st, t);
         }
         shown = trials.len();
         let phase = st["phase"].as_str().unwrap_or("");
-        let settled = match phase {
-            "Unsat" => true,
-            "Monitoring" | "Satisfied" => st["bestConfig"].is_object(),
-            _ => false,
-        };
-        if settled {
+        if settled(&st) {
             return Ok(st);
         }
         anyhow::ensure!(
@@ -324,6 +305,34 @@ pub async fn wait_for_outcome(
             timeout.as_secs()
         );
         tokio::time::sleep(Duration::from_millis(500)).await;
+    }
+}
+
+/// One line per measured trial, as the demo and the bench show them.
+pub fn print_trial(st: &Value, t: &Value) {
+    println!(
+        "    trial {:>2}/{}  satisfaction {:>5.1}%  objective {:>5}  {}  {}",
+        t["index"].as_u64().unwrap_or(0) + 1,
+        st["maxTrials"].as_u64().unwrap_or(0),
+        t["satisfaction"].as_f64().unwrap_or(0.0) * 100.0,
+        t["objective"]
+            .as_f64()
+            .map_or("-".into(), |o| format!("{o:.3}")),
+        if t["feasible"].as_bool() == Some(true) {
+            "feasible  "
+        } else {
+            "infeasible"
+        },
+        crate::tuning::view::config_text(&t["config"]),
+    );
+}
+
+/// Whether a spec's status shows the run's outcome: Unsat, or a monitored best config.
+pub fn settled(st: &Value) -> bool {
+    match st["phase"].as_str().unwrap_or("") {
+        "Unsat" => true,
+        "Monitoring" | "Satisfied" => st["bestConfig"].is_object(),
+        _ => false,
     }
 }
 

@@ -69,6 +69,12 @@ pub fn free_port() -> u16 {
     }
 }
 
+/// The process-wide lock a [`Robot`] holds, for scenarios that start their
+/// own robot (e.g. `configbot bench`) but must not overlap the others.
+pub fn serial() -> MutexGuard<'static, ()> {
+    SERIAL.lock().unwrap_or_else(|p| p.into_inner())
+}
+
 /// A private ConfigBot with its embedded agent.
 pub struct Robot {
     pub dir: tempfile::TempDir,
@@ -82,7 +88,7 @@ pub struct Robot {
 impl Robot {
     /// Starts `configbot serve --agent` and waits for its API socket.
     pub fn start() -> Robot {
-        let serial = SERIAL.lock().unwrap_or_else(|p| p.into_inner());
+        let serial = serial();
         let mut r = Robot {
             dir: tempfile::tempdir().expect("temp dir"),
             root: unique_root(),

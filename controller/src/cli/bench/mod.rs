@@ -1,0 +1,682 @@
+//! `configbot bench`: the paper's comparison on this machine. For each example
+//! stack it measures, over the same fixed window, the default config, three
+//! random configs from the knob space, ConfigBot with CPU knobs only
+//! (adaptors off) and full ConfigBot, each tuning run on a fresh robot so no
+//! library entry carries over. It prints a table like the paper's Table III,
+//! writes `bench.json` and, per stack, the tuning progress and the histogram
+//! of the core rate (default vs full ConfigBot) as SVG. Then the paper's
+//! Table IV ([`cross`]: each stack's best config on the other stacks) and
+//! Fig. 7 ([`timeline`]: Basic-NAV → Terrain-NAV → Basic-NAV on one robot).
+//! Tuning cost is counted in trials and in seconds from applying the spec,
+//! read from the spec's status as the run publishes it ([`follow`]).
+
+mod cross;
+mod timeline;
+
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+use std::time::{Duration, Instant};
+
+use clap::Args;
+use configbot_manifests::{Kind, PerformanceSpec, RobotStack};
+use serde::Serialize;
+use serde_json::Value;
+
+use super::demo::{
+    PrivateRobot, example, histogram_chart, measure_defs, print_eval, print_trial, progress_chart,
+    settled,
+};
+use crate::tuning::knobs;
+use crate::tuning::measure::{self, Evaluation, MetricDef};
+use crate::tuning::robot::Robot;
+
+#[derive(Debug, Args)]
+pub struct BenchArgs {
+    /// Stacks to run (comma-separated).
+    #[arg(
+        long,
+        value_delimiter = ',',
+        default_value = "basic-nav,intermed-nav,terrain-nav"
+    )]
+    stacks: Vec<String>,
+    /// Seconds each config is measured for.
+    #[arg(long, default_value_t = 30)]
+    window_secs: u64,
+    /// Random configs per stack.
+    #[arg(long, default_value_t = 3)]
+    random: usize,
+    /// Seed of the random configs.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Output folder (bench.json and plots).
+    #[arg(long, default_value = "bench-results")]
+    out: PathBuf,
+    /// Stacks each stack's best config is cross-evaluated on (Table IV).
+    #[arg(long, value_delimiter = ',')]
+    cross_on: Option<Vec<String>>,
+    /// Seconds after the timeline starts at which the robot switches from
+    /// Basic-NAV to Terrain-NAV (later if Basic-NAV is still tuning).
+    #[arg(long, default_value_t = 50)]
+    switch_at_secs: u64,
+    /// Seconds the timeline stays in each context after its config holds.
+    #[arg(long, default_value_t = 20)]
+    hold_secs: u64,
+    /// For CI: Basic-NAV only, 5 s windows, one random config, at most 6
+    /// trials of at most 3 s; Basic-NAV's config cross-evaluated on
+    /// Terrain-NAV only; a short timeline (switch at 15 s, at most 4 trials
+    /// per run). Checks the shape of the output, not the numbers.
+    #[arg(long)]
+    quick: bool,
+    /// Give up a tuning run after this many seconds.
+    #[arg(long, default_value_t = 900)]
+    timeout_secs: u64,
+}
+
+/// One measured method on one stack.
+#[derive(Debug, Clone, Serialize)]
+#[serde(rename_all = "camelCase")]
+pub struct MethodResult {
+    pub stack: String,
+    pub method: String,
+    pub satisfaction: f64,
+    /// Mean of every metric over the window.
+    pub metrics: std::collections::BTreeMap<String, f64>,
+    pub config: Value,
+    /// Tuning runs only.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub tuning: Option<TuningCost>,
+    /// Per-second values of the first core metric (for the histogram).
+    pub core_series: Vec<f64>,
+}
+
+/// What a tuning run cost. Seconds count from applying the PerformanceSpec
+/// to the moment the spec's status first showed the event (polled every
+/// [`POLL`]; the run writes status right after each step).
+#[derive(Debug, Clone, Serialize)]
+#[serde(rename_all = "camelCase")]
+pub struct TuningCost {
+    pub phase: String,
+    pub trials: u64,
+    /// 1-based trial number of the first feasible trial.
+    pub first_feasible_trial: Option<u64>,
+    /// When the first feasible trial's measurement was done.
+    pub first_feasible_seconds: Option<f64>,
+    /// 1-based trial number of the config finally applied.
+    pub final_trial: Option<u64>,
+    /// When the final config's trial was measured.
+    pub final_trial_seconds: Option<f64>,
+    /// When the run settled: the final config applied and verified
+    /// (Monitoring), or Unsat.
+    pub final_config_seconds: f64,
+    pub trial_history: Value,
+}
+
+/// Status poll interval while following a tuning run.
+pub const POLL: Duration = Duration::from_millis(200);
+
+/// The cost of a run from its settled status, the seconds at which each
+/// trial first appeared in the status (by index) and when it settled (pure).
+pub fn tuning_cost(status: &Value, seen: &[f64], settled_secs: f64) -> TuningCost {
+    let history = status["trialHistory"].clone();
+    let first_feasible = history
+        .as_array()
+        .into_iter()
+        .flatten()
+        .find(|t| t["feasible"].as_bool() == Some(true))
+        .and_then(|t| t["index"].as_u64());
+    let best = status["bestTrial"].as_u64();
+    let at = |i: Option<u64>| i.and_then(|i| seen.get(i as usize).copied());
+    TuningCost {
+        phase: status["phase"].as_str().unwrap_or("").into(),
+        trials: status["trials"].as_u64().unwrap_or(0),
+        first_feasible_trial: first_feasible.map(|i| i + 1),
+        first_feasible_seconds: at(first_feasible),
+        final_trial: best.map(|i| i + 1),
+        final_trial_seconds: at(best),
+        final_config_seconds: settled_secs,
+        trial_history: history,
+    }
+}
+
+/// Whether the run has reached its outcome with the config it keeps applied:
+/// the demo's settled check, and for Unsat also the safest config applied
+/// (status shows it as `bestConfig` once it is monitored) (pure).
+pub fn outcome(st: &Value) -> bool {
+    settled(st) && st["bestConfig"].is_object()
+}
+
+/// Follows a spec's tuning run from `started` (when it was applied):
+/// prints each new trial, notes when each trial first appears in the status,
+/// and returns the settled status, those seconds and the seconds to settle.
+pub async fn follow(
+    robot: &PrivateRobot,
+    name: &str,
+    started: Instant,
+    timeout: Duration,
+) -> anyhow::Result<(Value, Vec<f64>, f64)> {
+    let path = crate::client::path(Kind::PerformanceSpec, Some("default"), Some(name));
+    let mut seen: Vec<f64> = Vec::new();
+    loop {
+        let obj = robot.client.get(&path).await?;
+        let now = started.elapsed().as_secs_f64();
+        let st = obj["status"].clone();
+        let trials = st["trialHistory"].as_array().cloned().unwrap_or_default();
+        for t in trials.iter().skip(seen.len()) {
+            print_trial(&st, t);
+            seen.push(now);
+        }
+        if outcome(&st) {
+            return Ok((st, seen, now));
+        }
+        anyhow::ensure!(
+            started.elapsed() < timeout,
+            "{name}: tuning did not finish within {} s (phase {:?})",
+            timeout.as_secs(),
+            st["phase"].as_str().unwrap_or("")
+        );
+        tokio::time::sleep(POLL).await;
+    }
+}
+
+/// The settings a run uses (`--quick` overrides the flags).
+#[derive(Debug, Clone)]
+struct Plan {
+    stacks: Vec<String>,
+    cross_on: Vec<String>,
+    window: u64,
+    random: usize,
+    switch_at: u64,
+    hold: u64,
+    max_trials: Option<u32>,
+    /// Trial cap of the timeline's runs (fewer in `--quick`).
+    timeline_trials: Option<u32>,
+}
+
+fn plan(a: &BenchArgs) -> Plan {
+    if a.quick {
+        Plan {
+            stacks: vec!["basic-nav".into()],
+            cross_on: vec!["basic-nav".into(), "terrain-nav".into()],
+            window: 5,
+            random: 1,
+            switch_at: 15,
+            hold: 4,
+            max_trials: Some(6),
+            timeline_trials: Some(4),
+        }
+    } else {
+        Plan {
+            stacks: a.stacks.clone(),
+            cross_on: a.cross_on.clone().unwrap_or_else(|| a.stacks.clone()),
+            window: a.window_secs,
+            random: a.random,
+            switch_at: a.switch_at_secs,
+            hold: a.hold_secs,
+            max_trials: None,
+            timeline_trials: None,
+        }
+    }
+}
+
+/// An example stack and spec, shortened for `--quick`.
+fn example_for(name: &str, p: &Plan) -> anyhow::Result<(RobotStack, PerformanceSpec)> {
+    let (stack, mut spec) = example(name)?;
+    if let Some(m) = p.max_trials {
+        spec.spec.tuning.max_trials = spec.spec.tuning.max_trials.min(m);
+        spec.spec.tuning.trial_seconds = spec.spec.tuning.trial_seconds.min(3.0);
+    }
+    Ok((stack, spec))
+}
+
+pub async fn run(a: &BenchArgs) -> anyhow::Result<ExitCode> {
+    let p = plan(a);
+    std::fs::create_dir_all(&a.out)?;
+    let mut results = Vec::new();
+    for name in &p.stacks {
+        let (stack, spec) = example_for(name, &p)?;
+        let defs = measure::metric_defs(&stack.spec, &spec.spec);
+        println!(
+            "==> {name}: default and {} random configs ({} s each)",
+            p.random, p.window
+        );
+        results.extend(untuned(a, name, &stack, &spec, &defs, p.window, p.random).await?);
+        for (method, adaptors) in [("cgroup-only", false), ("configbot", true)] {
+            println!("==> {name}: {method}");
+            let mut s = spec.clone();
+            s.spec.knobs.adaptors.enabled = adaptors;
+            results.push(tuned(a, name, method, &stack, &s, &defs, p.window).await?);
+        }
+        write_plots(&a.out, name, &defs, &results)?;
+    }
+    println!("\n{}", table(&results));
+    let cross = cross::run(a, &p, &results).await?;
+    println!("\n{}", cross::matrix_table(&cross));
+    let timeline = timeline::run(a, &p).await?;
+    println!("\n{}", timeline::summary(&timeline));
+    let path = a.out.join("bench.json");
+    std::fs::write(
+        &path,
+        serde_json::to_string_pretty(&serde_json::json!({
+            "quick": a.quick, "windowSeconds": p.window, "seed": a.seed, "results": results,
+            "crossEvaluation": cross, "timeline": timeline,
+        }))?,
+    )?;
+    println!("results: {}", path.display());
+    Ok(ExitCode::SUCCESS)
+}
+
+fn fresh_dir(out: &Path, stack: &str, method: &str) -> anyhow::Result<PathBuf> {
+    let d = out.join("state").join(format!("{stack}-{method}"));
+    if d.exists() {
+        std::fs::remove_dir_all(&d)?;
+    }
+    Ok(d)
+}
+
+/// A fresh robot running `stack`, once every metric's topic has delivered
+/// messages; on failure the robot is closed (nodes stopped, cgroups removed).
+async fn start(
+    out: &Path,
+    name: &str,
+    method: &str,
+    stack: &RobotStack,
+    defs: &[MetricDef],
+) -> anyhow::Result<PrivateRobot> {
+    let robot = PrivateRobot::start(&fresh_dir(out, name, method)?).await?;
+    let up = async {
+        robot
+            .apply(&serde_json::to_value(stack)?, Kind::RobotStack)
+            .await?;
+        let silent = wait_until_up(robot.robot.as_ref(), defs, FLOW_TIMEOUT).await;
+        let core_silent: Vec<&String> = silent
+            .iter()
+            .filter(|n| defs.iter().any(|d| d.core && &d.name == *n))
+            .collect();
+        anyhow::ensure!(
+            core_silent.is_empty(),
+            "{name}: no messages on {} within {} s (logs: {})",
+            silent.join(", "),
+            FLOW_TIMEOUT.as_secs(),
+            robot.dir.join("agent/logs").display()
+        );
+        if !silent.is_empty() {
+            println!(
+                "    {name}: no messages yet on {} (non-core; starved by the default config?)",
+                silent.join(", ")
+            );
+        }
+        anyhow::Ok(())
+    }
+    .await;
+    match up {
+        Ok(()) => Ok(robot),
+        Err(e) => {
+            robot.close().await?;
+            Err(e)
+        }
+    }
+}
+
+/// How long a fresh stack may take until every core metric's topic has flowed.
+pub(super) const FLOW_TIMEOUT: Duration = Duration::from_secs(90);
+/// How long to wait for non-core topics once the core ones flow: a default
+/// config may starve a non-core app for good (Terrain-NAV's dashboard).
+const NON_CORE_GRACE: Duration = Duration::from_secs(20);
+
+/// Measures 1 s windows until each of `defs` has delivered messages in at
+/// least one of them (a loaded machine may starve a topic for a second, so
+/// not all in the same window), or the core ones have and the non-core ones
+/// had [`NON_CORE_GRACE`], or `timeout` passed; returns the metrics that
+/// never did.
+pub(super) async fn wait_until_up(
+    robot: &dyn Robot,
+    defs: &[MetricDef],
+    timeout: Duration,
+) -> Vec<String> {
+    let started = Instant::now();
+    let mut flowed = std::collections::BTreeSet::new();
+    loop {
+        match measure_defs(robot, defs, 1).await {
+            Ok(r) => flowed.extend(flowing(defs, &r)),
+            Err(_) => tokio::time::sleep(Duration::from_secs(1)).await,
+        }
+        let silent: Vec<&MetricDef> = defs.iter().filter(|d| !flowed.contains(&d.name)).collect();
+        let core_up = silent.iter().all(|d| !d.core);
+        let waited = started.elapsed();
+        if silent.is_empty() || (core_up && waited >= NON_CORE_GRACE) || waited >= timeout {
+            return silent.iter().map(|d| d.name.clone()).collect();
+        }
+    }
+}
+
+/// The metrics whose probe saw messages in `r` (pure).
+fn flowing(defs: &[MetricDef], r: &configbot_agent::measure::MeasureReport) -> Vec<String> {
+    defs.iter()
+        .filter(|d| r.series.iter().any(|s| s.probe == d.probe && s.mean > 0.0))
+        .map(|d| d.name.clone())
+        .collect()
+}
+
+fn result(
+    stack: &str,
+    method: &str,
+    defs: &[MetricDef],
+    r: &configbot_agent::measure::MeasureReport,
+    config: Value,
+    tuning: Option<TuningCost>,
+) -> MethodResult {
+    let e: Evaluation = measure::evaluate(defs, r, Default::default());
+    let core_series = defs
+        .iter()
+        .find(|d| d.core)
+        .and_then(|d| r.series.iter().find(|s| s.probe == d.probe))
+        .map(|s| s.values.clone())
+        .unwrap_or_default();
+    print_eval(method, defs, r);
+    MethodResult {
+        stack: stack.into(),
+        method: method.into(),
+        satisfaction: e.satisfaction,
+        metrics: e.means,
+        config,
+        tuning,
+        core_series,
+    }
+}
+
+/// Default and random configs, on one robot.
+async fn untuned(
+    a: &BenchArgs,
+    name: &str,
+    stack: &RobotStack,
+    spec: &PerformanceSpec,
+    defs: &[MetricDef],
+    window: u64,
+    random: usize,
+) -> anyhow::Result<Vec<MethodResult>> {
+    let robot = start(&a.out, name, "untuned", stack, defs).await?;
+    let out = async {
+        let mut out = Vec::new();
+        let r = measure_defs(robot.robot.as_ref(), defs, window).await?;
+        out.push(result(name, "default", defs, &r, Value::Null, None));
+        let graph = robot.robot.graph().await?;
+        let rates = measure::topic_rates(
+            &robot
+                .robot
+                .measure(&measure::request(
+                    &[],
+                    &graph.topics.keys().cloned().collect::<Vec<_>>(),
+                    2000,
+                    1000,
+                ))
+                .await?,
+        );
+        let space = knobs::derive(
+            &stack.spec,
+            &spec.spec,
+            &graph,
+            &rates,
+            stack.spec.robot.cpus.unwrap_or(2.0),
+        )?;
+        let mut rng = configbot_optimizer::rng::Rng::seed_from_u64(a.seed);
+        for i in 0..random {
+            let x: Vec<f64> = space
+                .knobs
+                .iter()
+                .map(|k| rng.range(k.min, k.max))
+                .collect();
+            let cfg = space.to_config(&x);
+            robot.robot.apply(&cfg).await?;
+            tokio::time::sleep(Duration::from_secs(2)).await;
+            let r = measure_defs(robot.robot.as_ref(), defs, window).await?;
+            out.push(result(
+                name,
+                &format!("random-{}", i + 1),
+                defs,
+                &r,
+                serde_json::to_value(&cfg)?,
+                None,
+            ));
+        }
+        anyhow::Ok(out)
+    }
+    .await;
+    robot.close().await?;
+    out
+}
+
+/// A tuning run on a fresh robot, then a measurement of what it applied.
+async fn tuned(
+    a: &BenchArgs,
+    name: &str,
+    method: &str,
+    stack: &RobotStack,
+    spec: &PerformanceSpec,
+    defs: &[MetricDef],
+    window: u64,
+) -> anyhow::Result<MethodResult> {
+    let robot = start(&a.out, name, method, stack, defs).await?;
+    let out = async {
+        let started = Instant::now();
+        robot
+            .apply(&serde_json::to_value(spec)?, Kind::PerformanceSpec)
+            .await?;
+        let (st, seen, settled_secs) = follow(
+            &robot,
+            &spec.metadata.name,
+            started,
+            Duration::from_secs(a.timeout_secs),
+        )
+        .await?;
+        let cost = tuning_cost(&st, &seen, settled_secs);
+        tokio::time::sleep(Duration::from_secs(2)).await;
+        let r = measure_defs(robot.robot.as_ref(), defs, window).await?;
+        anyhow::Ok(result(
+            name,
+            method,
+            defs,
+            &r,
+            st["bestConfig"].clone(),
+            Some(cost),
+        ))
+    }
+    .await;
+    robot.close().await?;
+    out
+}
+
+/// `trial 3 @ 21 s` (or `-`).
+fn at_trial(trial: Option<u64>, secs: Option<f64>) -> String {
+    match (trial, secs) {
+        (Some(t), Some(s)) => format!("{t} @ {s:.0} s"),
+        (Some(t), None) => format!("{t}"),
+        _ => "-".into(),
+    }
+}
+
+/// The Table III-like summary with the tuning cost (pure).
+pub fn table(results: &[MethodResult]) -> String {
+    let mut rows = Vec::new();
+    for r in results {
+        let metrics: Vec<String> = r
+            .metrics
+            .iter()
+            .map(|(k, v)| format!("{k}={v:.1}"))
+            .collect();
+        let t = r.tuning.as_ref();
+        rows.push(vec![
+            r.stack.clone(),
+            r.method.clone(),
+            format!("{:.1}%", r.satisfaction * 100.0),
+            metrics.join(" "),
+            t.map_or("-".into(), |t| format!("{} ({})", t.trials, t.phase)),
+            t.map_or("-".into(), |t| {
+                at_trial(t.first_feasible_trial, t.first_feasible_seconds)
+            }),
+            t.map_or("-".into(), |t| {
+                at_trial(t.final_trial, t.final_trial_seconds)
+            }),
+            t.map_or("-".into(), |t| format!("{:.0}", t.final_config_seconds)),
+        ]);
+    }
+    let h = [
+        "STACK",
+        "METHOD",
+        "SATISFACTION",
+        "METRICS (Hz)",
+        "TRIALS",
+        "1ST FEASIBLE",
+        "FINAL TRIAL",
+        "SETTLED S",
+    ]
+    .map(String::from);
+    crate::table::render(&h, &rows)
+}
+
+fn write_plots(
+    out: &Path,
+    name: &str,
+    defs: &[MetricDef],
+    results: &[MethodResult],
+) -> anyhow::Result<()> {
+    let of = |m: &str| results.iter().find(|r| r.stack == name && r.method == m);
+    if let Some(t) = of("configbot").and_then(|r| r.tuning.as_ref()) {
+        let trials = t.trial_history.as_array().cloned().unwrap_or_default();
+        let mut c = progress_chart(&trials);
+        c.title = format!("{name}: tuning progress");
+        std::fs::write(out.join(format!("{name}-progress.svg")), c.to_svg())?;
+    }
+    if let (Some(core), Some(d), Some(c)) =
+        (defs.iter().find(|d| d.core), of("default"), of("configbot"))
+    {
+        let report = |v: &[f64]| configbot_agent::measure::MeasureReport {
+            started_unix_ms: 0,
+            duration_ms: v.len() as u64 * 1000,
+            sub_window_ms: 1000,
+            series: vec![configbot_agent::measure::ProbeSeries {
+                probe: core.probe.clone(),
+                values: v.to_vec(),
+                mean: 0.0,
+            }],
+        };
+        let mut chart = histogram_chart(core, &report(&d.core_series), &report(&c.core_series));
+        chart.title = format!("{name}: {}", chart.title);
+        std::fs::write(out.join(format!("{name}-core-rate.svg")), chart.to_svg())?;
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use serde_json::json;
+
+    fn settled_status() -> Value {
+        json!({"phase": "Monitoring", "trials": 4, "bestTrial": 3, "bestConfig": {},
+            "trialHistory": [
+                {"index": 0, "feasible": false}, {"index": 1, "feasible": true},
+                {"index": 2, "feasible": false}, {"index": 3, "feasible": true}]})
+    }
+
+    #[test]
+    fn cost_takes_trial_numbers_and_seconds_from_the_status() {
+        let c = tuning_cost(&settled_status(), &[4.0, 9.4, 14.0, 19.2], 30.0);
+        assert_eq!(c.phase, "Monitoring");
+        assert_eq!(c.trials, 4);
+        assert_eq!(
+            (c.first_feasible_trial, c.first_feasible_seconds),
+            (Some(2), Some(9.4))
+        );
+        assert_eq!(
+            (c.final_trial, c.final_trial_seconds),
+            (Some(4), Some(19.2))
+        );
+        assert_eq!(c.final_config_seconds, 30.0);
+        // Unsat: no best trial, no feasible one.
+        let u = tuning_cost(
+            &json!({"phase": "Unsat", "trials": 1, "trialHistory": [{"index": 0, "feasible": false}]}),
+            &[3.0],
+            8.0,
+        );
+        assert_eq!((u.first_feasible_trial, u.final_trial), (None, None));
+        assert_eq!(
+            (u.first_feasible_seconds, u.final_trial_seconds),
+            (None, None)
+        );
+    }
+
+    #[test]
+    fn unsat_is_an_outcome_once_its_config_is_applied() {
+        assert!(outcome(&settled_status()));
+        assert!(!outcome(&json!({"phase": "Unsat"})));
+        assert!(outcome(&json!({"phase": "Unsat", "bestConfig": {}})));
+        assert!(!outcome(&json!({"phase": "Trials", "bestConfig": {}})));
+    }
+
+    #[test]
+    fn a_topic_flows_when_its_probe_saw_messages() {
+        use configbot_agent::measure::{MeasureReport, Probe, ProbeSeries};
+        let def = |name: &str, topic: &str| MetricDef {
+            name: name.into(),
+            app: "a".into(),
+            probe: Probe::TopicRate {
+                topic: topic.into(),
+                subscriber: None,
+            },
+            at_least: true,
+            target: 1.0,
+            core: true,
+            weight: 1.0,
+        };
+        let defs = [
+            def("cmd", "/cmd_vel"),
+            def("det", "/det"),
+            def("web", "/web"),
+        ];
+        let series = |topic: &str, mean: f64| ProbeSeries {
+            probe: Probe::TopicRate {
+                topic: topic.into(),
+                subscriber: None,
+            },
+            values: vec![mean],
+            mean,
+        };
+        let r = MeasureReport {
+            started_unix_ms: 0,
+            duration_ms: 1000,
+            sub_window_ms: 1000,
+            series: vec![series("/cmd_vel", 40.0), series("/det", 0.0)],
+        };
+        assert_eq!(flowing(&defs, &r), ["cmd"]);
+    }
+
+    #[test]
+    fn table_shows_cost_for_tuned_rows_only() {
+        let row = |method: &str, tuning: Option<TuningCost>| MethodResult {
+            stack: "basic-nav".into(),
+            method: method.into(),
+            satisfaction: 0.5,
+            metrics: [("cmd".to_string(), 30.0)].into_iter().collect(),
+            config: Value::Null,
+            tuning,
+            core_series: Vec::new(),
+        };
+        let c = tuning_cost(&settled_status(), &[4.0, 9.4, 14.0, 19.2], 30.0);
+        let t = table(&[row("default", None), row("configbot", Some(c))]);
+        let lines: Vec<&str> = t.lines().collect();
+        assert!(lines[0].contains("1ST FEASIBLE"), "{t}");
+        assert!(
+            lines[1].contains("50.0%") && lines[1].contains("cmd=30.0"),
+            "{t}"
+        );
+        assert!(lines[1].trim_end().ends_with('-'), "{t}");
+        assert!(lines[2].contains("4 (Monitoring)"), "{t}");
+        assert!(
+            lines[2].contains("2 @ 9 s") && lines[2].contains("4 @ 19 s"),
+            "{t}"
+        );
+        assert!(lines[2].trim_end().ends_with("30"), "{t}");
+        assert_eq!(at_trial(Some(2), None), "2");
+        assert_eq!(at_trial(None, Some(1.0)), "-");
+    }
+}

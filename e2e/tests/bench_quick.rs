@@ -1,0 +1,348 @@
+//! Issue 7, "Done when" 3: `configbot bench --quick` runs on real processes,
+//! cgroups and ROS transport, and its output has the expected shape: every
+//! method row, satisfactions in [0, 1], tuning costs for the tuned methods,
+//! the cross-evaluation and the context-switch timeline with their keys, and
+//! SVG plots that are well-formed XML. Not the numbers: the example stacks
+//! are calibrated elsewhere and the machine is shared.
+//!
+//! The bench makes its own robots (cgroup root `configbot-demo-<its pid>`);
+//! the test checks that the bench removed them and their processes, and
+//! removes them itself if the bench failed or was killed. As for the other
+//! scenarios ([`common::ROBOT_SHARES`]), the bench process (control plane,
+//! ROS master, meters) runs in a `configbot-e2e-<pid>-bench` cpu cgroup and
+//! its robot's root gets high `cpu.shares`, so a busy shared machine does
+//! not starve the robot it measures.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use serde_json::Value;
+
+/// The bench process; killed, and its cgroups and nodes removed, on drop.
+struct Bench {
+    child: Child,
+    /// Its own cpu cgroup (`configbot-e2e-<test pid>-bench`), if there is a cpu hierarchy.
+    ctl: Option<PathBuf>,
+}
+
+impl Bench {
+    fn start(out: &Path, log: &Path) -> Bench {
+        let cpu = configbot_cgroups::Layout::detect()
+            .ok()
+            .and_then(|l| l.v1_cpu);
+        let ctl = cpu.map(|c| c.join(format!("{}-bench", common::unique_root())));
+        if let Some(d) = &ctl {
+            std::fs::create_dir_all(d).expect("create the bench's cpu cgroup");
+            std::fs::write(d.join("cpu.shares"), common::ROBOT_SHARES.to_string())
+                .expect("set cpu.shares");
+        }
+        let child = Command::new(common::configbot_bin())
+            .args(["bench", "--quick", "--out"])
+            .arg(out)
+            .env("ROS_HOSTNAME", "localhost")
+            .stdout(std::fs::File::create(log).expect("log"))
+            .stderr(Stdio::inherit())
+            .spawn()
+            .expect("start configbot bench");
+        let b = Bench { child, ctl };
+        if let Some(d) = &b.ctl {
+            std::fs::write(d.join("cgroup.procs"), b.child.id().to_string())
+                .expect("move the bench into its cgroup");
+        }
+        b
+    }
+
+    fn root(&self) -> String {
+        format!("configbot-demo-{}", self.child.id())
+    }
+
+    /// Gives the bench's current robot root high `cpu.shares` (each robot
+    /// of the bench creates it anew).
+    fn prioritise_robot(&self) {
+        let Some(cpu) = configbot_cgroups::Layout::detect()
+            .ok()
+            .and_then(|l| l.v1_cpu)
+        else {
+            return;
+        };
+        let shares = cpu.join(self.root()).join("cpu.shares");
+        let want = common::ROBOT_SHARES.to_string();
+        if let Ok(now) = std::fs::read_to_string(&shares)
+            && now.trim() != want
+        {
+            let _ = std::fs::write(&shares, &want);
+        }
+    }
+}
+
+impl Drop for Bench {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+        common::nuke(&self.root());
+        for dir in cgroup_dirs(&self.root()) {
+            let _ = std::fs::remove_dir(dir);
+        }
+        if let Some(d) = &self.ctl {
+            let _ = std::fs::remove_dir(d);
+        }
+    }
+}
+
+/// The bench's cgroup root in each v1 hierarchy, where it exists.
+fn cgroup_dirs(root: &str) -> Vec<std::path::PathBuf> {
+    let Ok(l) = configbot_cgroups::Layout::detect() else {
+        return Vec::new();
+    };
+    [l.v1_cpu, l.v1_cpuacct, l.v1_cpuset]
+        .into_iter()
+        .flatten()
+        .map(|m| m.join(root))
+        .filter(|d| d.exists())
+        .collect()
+}
+
+/// Well-formed enough to be XML: one root `<svg>`, every tag closed in order.
+fn check_svg(path: &Path) {
+    let text = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    assert!(text.trim_start().starts_with("<svg"), "{}", path.display());
+    let mut open: Vec<String> = Vec::new();
+    let mut rest = text.as_str();
+    let mut roots = 0;
+    while let Some(i) = rest.find('<') {
+        let j = rest[i..]
+            .find('>')
+            .map(|j| i + j)
+            .unwrap_or_else(|| panic!("{}: unterminated tag", path.display()));
+        let tag = &rest[i + 1..j];
+        rest = &rest[j + 1..];
+        if tag.starts_with('?') || tag.starts_with('!') {
+            continue;
+        }
+        let name = |t: &str| t.split_whitespace().next().unwrap_or("").to_string();
+        if let Some(closing) = tag.strip_prefix('/') {
+            let top = open.pop();
+            assert_eq!(
+                top.as_deref(),
+                Some(name(closing).as_str()),
+                "{}",
+                path.display()
+            );
+        } else {
+            if open.is_empty() {
+                roots += 1;
+            }
+            if !tag.ends_with('/') {
+                open.push(name(tag));
+            }
+        }
+    }
+    assert!(open.is_empty(), "{}: unclosed {open:?}", path.display());
+    assert_eq!(roots, 1, "{}", path.display());
+    assert!(text.contains("<svg"));
+}
+
+fn unit(v: &Value, what: &str) -> f64 {
+    let x = v
+        .as_f64()
+        .unwrap_or_else(|| panic!("{what}: not a number: {v}"));
+    assert!((0.0..=1.0).contains(&x), "{what} = {x}");
+    x
+}
+
+fn secs(v: &Value, what: &str) -> f64 {
+    let x = v
+        .as_f64()
+        .unwrap_or_else(|| panic!("{what}: not a number: {v}"));
+    assert!(x.is_finite() && x >= 0.0, "{what} = {x}");
+    x
+}
+
+fn check_results(results: &[Value]) {
+    for method in ["default", "random-1", "cgroup-only", "configbot"] {
+        let r = results
+            .iter()
+            .find(|r| r["stack"] == "basic-nav" && r["method"] == method)
+            .unwrap_or_else(|| panic!("no {method} row"));
+        unit(&r["satisfaction"], &format!("{method} satisfaction"));
+        let metrics = r["metrics"].as_object().expect("metrics");
+        assert!(!metrics.is_empty(), "{method}: no metrics");
+        for (k, v) in metrics {
+            secs(v, &format!("{method} {k}"));
+        }
+        assert!(!r["coreSeries"].as_array().expect("coreSeries").is_empty());
+        let t = &r["tuning"];
+        if method == "cgroup-only" || method == "configbot" {
+            let phase = t["phase"].as_str().expect("phase");
+            assert!(matches!(phase, "Monitoring" | "Unsat"), "{method}: {phase}");
+            let trials = t["trials"].as_u64().expect("trials");
+            assert!(trials <= 6, "quick caps trials at 6: {trials}");
+            let settled = secs(&t["finalConfigSeconds"], "finalConfigSeconds");
+            assert!(settled > 0.0);
+            for (trial, at) in [
+                ("firstFeasibleTrial", "firstFeasibleSeconds"),
+                ("finalTrial", "finalTrialSeconds"),
+            ] {
+                // A trial number comes with the second it was measured, before the run settled.
+                if let Some(n) = t[trial].as_u64() {
+                    assert!(n >= 1 && n <= trials, "{method} {trial} {n}");
+                    assert!(secs(&t[at], at) <= settled, "{method}: {at} after settling");
+                } else {
+                    assert!(t[at].is_null(), "{method}: {at} without {trial}");
+                }
+            }
+            assert_eq!(
+                t["trialHistory"].as_array().expect("trialHistory").len() as u64,
+                trials
+            );
+            if phase == "Monitoring" {
+                assert!(r["config"].is_object(), "{method}: no config");
+            }
+        } else {
+            assert!(t.is_null(), "{method} has no tuning cost");
+        }
+    }
+}
+
+fn check_cross(cross: &[Value]) {
+    let own = cross
+        .iter()
+        .find(|e| e["own"] == true && e["from"] == "basic-nav")
+        .expect("the diagonal: basic-nav on itself, if it is evaluated");
+    assert_eq!(own["on"], "basic-nav");
+    let other = cross
+        .iter()
+        .find(|e| e["from"] == "basic-nav" && e["on"] == "terrain-nav")
+        .expect("basic-nav's config on terrain-nav");
+    assert_eq!(other["own"], false);
+    for e in [own, other] {
+        unit(&e["satisfaction"], "cross satisfaction");
+        let nc = e["nonCore"].as_object().expect("nonCore");
+        assert!(!nc.is_empty());
+        for (k, v) in nc {
+            secs(v, k);
+        }
+        assert!(e["dropped"].is_array() && e["config"].is_object(), "{e}");
+    }
+}
+
+fn check_timeline(t: &Value, out: &Path) {
+    assert!(
+        t["coreMetric"].is_string() && t["target"].is_number(),
+        "{t}"
+    );
+    let mut last_at = -1.0;
+    for key in ["initial", "toTerrain", "backToBasic"] {
+        let m = &t[key];
+        let at = secs(&m["at"], "at");
+        assert!(at > last_at, "{key} at {at} after {last_at}");
+        let applied = secs(&m["applied"], &format!("{key} applied"));
+        let detected = secs(&m["detected"], &format!("{key} detected"));
+        let up = secs(&m["stackUp"], "stackUp");
+        let spec = secs(&m["specApplied"], "specApplied");
+        assert!(at <= up && up <= spec, "{key}: {m}");
+        assert!(spec <= detected && detected <= applied, "{key}: {m}");
+        assert!(
+            (secs(&m["settleSeconds"], "settleSeconds") - (applied - at)).abs() < 1e-6,
+            "{m}"
+        );
+        secs(&m["detectionSeconds"], "detectionSeconds");
+        assert!(m["reused"].is_boolean() && m["trials"].is_u64(), "{m}");
+        assert!(
+            matches!(m["phase"].as_str(), Some("Monitoring" | "Unsat")),
+            "{m}"
+        );
+        last_at = applied;
+    }
+    // The first run learns; the switch back reuses the library config unless Basic-NAV ended Unsat.
+    assert_eq!(t["initial"]["reused"], false);
+    if t["initial"]["phase"] == "Monitoring" && t["backToBasic"]["reused"] == true {
+        assert_eq!(t["backToBasic"]["trials"], 0);
+    }
+    let seconds = t["seconds"].as_array().expect("seconds");
+    assert!(!seconds.is_empty());
+    let mut prev = f64::MIN;
+    for s in seconds {
+        let x = s["t"].as_f64().expect("t");
+        assert!(x > prev, "seconds in order");
+        prev = x;
+        secs(&s["core"], "core");
+        assert!(s["satisfied"].is_boolean());
+    }
+    let end = t["backToBasic"]["applied"].as_f64().unwrap_or(0.0);
+    assert!(
+        prev >= end - 6.0,
+        "recorded up to {prev} s, back applied at {end} s"
+    );
+    let segs = t["segments"].as_array().expect("segments");
+    assert!(segs.len() >= 4, "{segs:?}");
+    for s in segs {
+        if !s["satisfaction"].is_null() {
+            unit(&s["satisfaction"], "segment satisfaction");
+        }
+    }
+    assert!(!t["samples"].as_array().expect("samples").is_empty());
+    assert!(t["events"].is_array() && t["notes"].is_array());
+    assert_eq!(
+        Path::new(t["svg"].as_str().expect("svg")),
+        out.join("timeline.svg")
+    );
+}
+
+#[test]
+fn quick_bench_writes_every_table_and_plot() {
+    let _serial = common::serial();
+    let started = Instant::now();
+    let out = tempfile::tempdir().expect("temp dir");
+    let log = out.path().join("bench.log");
+    let mut bench = Bench::start(out.path(), &log);
+    let root = bench.root();
+    let deadline = Instant::now() + Duration::from_secs(420);
+    let status = loop {
+        if let Some(s) = bench.child.try_wait().expect("wait") {
+            break s;
+        }
+        bench.prioritise_robot();
+        assert!(
+            Instant::now() < deadline,
+            "bench --quick still running after 420 s:\n{}",
+            std::fs::read_to_string(&log).unwrap_or_default()
+        );
+        std::thread::sleep(Duration::from_millis(200));
+    };
+    let printed = std::fs::read_to_string(&log).unwrap_or_default();
+    assert!(
+        status.success(),
+        "bench --quick failed ({status}):\n{printed}"
+    );
+    // The bench removed its robot: no cgroup, so no node left in one.
+    let left = cgroup_dirs(&root);
+    assert!(left.is_empty(), "left behind: {left:?}");
+
+    let json: Value = serde_json::from_str(
+        &std::fs::read_to_string(out.path().join("bench.json")).expect("bench.json"),
+    )
+    .expect("bench.json is JSON");
+    assert_eq!(json["quick"], true);
+    check_results(json["results"].as_array().expect("results"));
+    check_cross(json["crossEvaluation"].as_array().expect("crossEvaluation"));
+    check_timeline(&json["timeline"], out.path());
+    for svg in [
+        "basic-nav-progress.svg",
+        "basic-nav-core-rate.svg",
+        "timeline.svg",
+    ] {
+        check_svg(&out.path().join(svg));
+    }
+    // What a reader sees: the table, the matrix and the timeline summary.
+    for heading in ["SETTLED S", "Cross-evaluation", "Context-switch timeline"] {
+        assert!(printed.contains(heading), "no {heading:?} in:\n{printed}");
+    }
+    eprintln!(
+        "e2e bench --quick: {:.0} s\n{printed}",
+        started.elapsed().as_secs_f64()
+    );
+}
