@@ -1,6 +1,7 @@
 //! The shared core of the ROS 1 data plane: master state behind a lock, its
 //! persistence, adaptor relays and topic meters, and the IO that carries out
-//! the master's [`Effect`]s (publisherUpdate, paramUpdate, shutdown calls).
+//! the master's [`Effect`]s (re-pointing meters and relays, publisherUpdate,
+//! paramUpdate, shutdown calls).
 
 use std::collections::BTreeMap;
 use std::sync::{Arc, Mutex, MutexGuard};
@@ -142,8 +143,8 @@ impl Core {
                         .await;
                     });
                 }
+                Effect::PublishersChanged { topic } => self.refresh_topic(&topic),
                 Effect::PublisherUpdate { topic, subscriber } => {
-                    self.refresh_topic(&topic);
                     let api = lock(&self.state).nodes.get(&subscriber).cloned();
                     let Some(api) = api else { continue };
                     let list = self.publishers_for(&topic, &subscriber);

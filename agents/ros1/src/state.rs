@@ -15,6 +15,10 @@ use crate::xmlrpc::Value;
 pub enum Effect {
     /// Tell node (at `api`) to shut down: another node took its name.
     Shutdown { api: String, reason: String },
+    /// The publisher set of `topic` changed (a publisher came, went or got
+    /// a new URI): re-point the master's own subscribers (topic meters,
+    /// adaptor relays), which are not registered nodes.
+    PublishersChanged { topic: String },
     /// Send `subscriber` the current publisher list of `topic`.
     PublisherUpdate { topic: String, subscriber: String },
     /// Send `node` the new value of subscribed parameter `key`.
@@ -214,16 +218,24 @@ impl MasterState {
         }
     }
 
+    /// What a change of `topic`'s publisher set owes: the master's own
+    /// subscribers first (also when no node subscribes), then every
+    /// registered subscriber.
     fn updates_for(&self, topic: &str) -> Vec<Effect> {
-        self.subscribers
-            .get(topic)
-            .into_iter()
-            .flatten()
-            .map(|s| Effect::PublisherUpdate {
-                topic: topic.into(),
-                subscriber: s.clone(),
-            })
-            .collect()
+        let nodes =
+            self.subscribers
+                .get(topic)
+                .into_iter()
+                .flatten()
+                .map(|s| Effect::PublisherUpdate {
+                    topic: topic.into(),
+                    subscriber: s.clone(),
+                });
+        std::iter::once(Effect::PublishersChanged {
+            topic: topic.into(),
+        })
+        .chain(nodes)
+        .collect()
     }
 
     fn apis(&self, nodes: Option<&BTreeSet<String>>) -> Vec<String> {
@@ -363,14 +375,19 @@ mod tests {
         assert_eq!(subs, vec!["http://l:1/"]);
         assert_eq!(
             fx,
-            vec![Effect::PublisherUpdate {
-                topic: "/chatter".into(),
-                subscriber: "/l".into()
-            }]
+            vec![
+                Effect::PublishersChanged {
+                    topic: "/chatter".into()
+                },
+                Effect::PublisherUpdate {
+                    topic: "/chatter".into(),
+                    subscriber: "/l".into()
+                }
+            ]
         );
         assert_eq!(s.publisher_apis("/chatter"), vec!["http://t:1/"]);
         let (n, fx) = s.unregister_publisher("/t", "http://t:1/", "/chatter");
-        assert_eq!((n, fx.len()), (1, 1));
+        assert_eq!((n, fx.len()), (1, 2));
         assert!(
             !s.nodes.contains_key("/t"),
             "node without registrations is forgotten"
@@ -399,6 +416,43 @@ mod tests {
         ));
         assert!(!s.publishers.contains_key("/a"));
         assert_eq!(s.nodes["/t"], "http://new/");
+    }
+
+    #[test]
+    fn publisher_changes_without_subscribers_still_repoint_meters() {
+        // A topic only the master's meter reads (e.g. /cmd_vel): a restarted
+        // publisher (same name, new URI) must still re-point the meter.
+        let changed =
+            |fx: &[Effect], t: &str| fx.contains(&Effect::PublishersChanged { topic: t.into() });
+        let mut s = MasterState::default();
+        let (_, fx) = s.register_publisher("/nav", "http://old/", "/cmd_vel", "x/Y");
+        assert_eq!(
+            fx,
+            vec![Effect::PublishersChanged {
+                topic: "/cmd_vel".into()
+            }]
+        );
+        s.register_publisher("/nav", "http://old/", "/path", "x/Y");
+        // The new incarnation registers /cmd_vel first: the bump drops the
+        // old /path too, and both topics change.
+        let (_, fx) = s.register_publisher("/nav", "http://new/", "/cmd_vel", "x/Y");
+        assert!(changed(&fx, "/cmd_vel") && changed(&fx, "/path"), "{fx:?}");
+        assert_eq!(s.publisher_apis("/cmd_vel"), vec!["http://new/"]);
+        // The old incarnation's late unregister changes nothing.
+        assert_eq!(
+            s.unregister_publisher("/nav", "http://old/", "/cmd_vel"),
+            (0, vec![])
+        );
+        let (n, fx) = s.unregister_publisher("/nav", "http://new/", "/cmd_vel");
+        assert_eq!(
+            (n, fx),
+            (
+                1,
+                vec![Effect::PublishersChanged {
+                    topic: "/cmd_vel".into()
+                }]
+            )
+        );
     }
 
     #[test]
