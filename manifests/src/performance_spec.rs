@@ -359,6 +359,16 @@ pub struct PerformanceSpecStatus {
     /// Index (into `trialHistory`) of the trial whose config is applied as the best.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub best_trial: Option<u32>,
+    /// Set when the best trial failed verification and a backed-off version of
+    /// it held: the fraction (0..1) of the way from each non-core knob's minimum
+    /// to the trial's value that the applied config keeps (a margin from the
+    /// core constraint's edge).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub best_trial_backoff: Option<f64>,
+    /// Trials whose config failed verification (its trial measurement was not
+    /// confirmed over the longer verification window), in order.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub rejected_trials: Vec<u32>,
     /// The context the run is for (robot model, running apps and nodes, labels).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub context: Option<String>,

@@ -65,6 +65,7 @@ pub fn status(
         (Some(Candidate::Trial { index }), Some(_)) => Some(*index as u32),
         _ => None,
     };
+    s.rejected_trials = run.rejected.iter().map(|&i| i as u32).collect();
     if let Some(cfg) = &monitored {
         s.best_config = Some(cfg.clone());
     }
