@@ -10,6 +10,7 @@ use std::time::Duration;
 use configbot_manifests::ResourceConfig;
 use serde::Serialize;
 
+use super::owner::Current;
 use super::{BenchArgs, MethodResult, Plan, example_for, start};
 use crate::cli::demo::{measure_defs, print_eval};
 use crate::tuning::measure;
@@ -145,6 +146,7 @@ fn non_core(defs: &[measure::MetricDef], means: &BTreeMap<String, f64>) -> BTree
 
 /// Measures every tuned stack's best config on every `plan.cross_on` stack.
 pub async fn run(
+    cur: &mut Current,
     a: &BenchArgs,
     p: &Plan,
     results: &[MethodResult],
@@ -178,7 +180,7 @@ pub async fn run(
         let (stack, spec) = example_for(on, p)?;
         let defs = measure::metric_defs(&stack.spec, &spec.spec);
         println!("==> cross-evaluation on {on}");
-        let robot = start(&a.out, on, "cross", &stack, &defs).await?;
+        let robot = start(cur, &a.out, on, "cross", &stack, &defs).await?;
         let measured = async {
             let graph = robot.robot.graph().await?;
             let nodes: BTreeSet<String> = stack.spec.nodes().map(|(_, n)| n.name.clone()).collect();
@@ -215,7 +217,7 @@ pub async fn run(
             anyhow::Ok(cells)
         }
         .await;
-        robot.close().await?;
+        cur.close().await?;
         out.extend(measured?);
     }
     Ok(out)

@@ -11,6 +11,7 @@
 //! read from the spec's status as the run publishes it ([`follow`]).
 
 mod cross;
+mod owner;
 mod timeline;
 
 use std::path::{Path, PathBuf};
@@ -22,6 +23,7 @@ use configbot_manifests::{Kind, PerformanceSpec, RobotStack};
 use serde::Serialize;
 use serde_json::Value;
 
+use self::owner::Current;
 use super::demo::{
     PrivateRobot, example, histogram_chart, measure_defs, print_eval, print_trial, progress_chart,
     settled,
@@ -229,7 +231,45 @@ fn example_for(name: &str, p: &Plan) -> anyhow::Result<(RobotStack, PerformanceS
     Ok((stack, spec))
 }
 
+/// Exit status of a bench interrupted by Ctrl-C or SIGTERM (128 + SIGINT).
+const INTERRUPTED: u8 = 130;
+
+/// Runs the bench; on Ctrl-C or SIGTERM stops the current robot's nodes,
+/// removes its cgroups and exits with [`INTERRUPTED`].
 pub async fn run(a: &BenchArgs) -> anyhow::Result<ExitCode> {
+    let mut cur = Current::default();
+    let result = tokio::select! {
+        r = bench(a, &mut cur) => Some(r),
+        _ = crate::cli::shutdown_signal() => None,
+    };
+    if result.is_none() {
+        eprintln!(
+            "configbot bench: interrupted{}",
+            if cur.is_open() {
+                "; stopping the robot's nodes and removing its cgroups"
+            } else {
+                ""
+            }
+        );
+    }
+    let closed = cur.close().await;
+    match result {
+        Some(r) => {
+            closed?;
+            r
+        }
+        None => {
+            if let Err(e) = closed {
+                eprintln!("configbot bench: stopping the robot: {e:#}");
+            }
+            eprintln!("configbot bench: interrupted, results incomplete");
+            Ok(ExitCode::from(INTERRUPTED))
+        }
+    }
+}
+
+/// The whole bench; every step runs on a robot borrowed from `cur`.
+async fn bench(a: &BenchArgs, cur: &mut Current) -> anyhow::Result<ExitCode> {
     let p = plan(a);
     std::fs::create_dir_all(&a.out)?;
     let mut results = Vec::new();
@@ -240,19 +280,19 @@ pub async fn run(a: &BenchArgs) -> anyhow::Result<ExitCode> {
             "==> {name}: default and {} random configs ({} s each)",
             p.random, p.window
         );
-        results.extend(untuned(a, name, &stack, &spec, &defs, p.window, p.random).await?);
+        results.extend(untuned(cur, a, &p, name, &stack, &spec, &defs).await?);
         for (method, adaptors) in [("cgroup-only", false), ("configbot", true)] {
             println!("==> {name}: {method}");
             let mut s = spec.clone();
             s.spec.knobs.adaptors.enabled = adaptors;
-            results.push(tuned(a, name, method, &stack, &s, &defs, p.window).await?);
+            results.push(tuned(cur, a, name, method, &stack, &s, p.window).await?);
         }
         write_plots(&a.out, name, &defs, &results)?;
     }
     println!("\n{}", table(&results));
-    let cross = cross::run(a, &p, &results).await?;
+    let cross = cross::run(cur, a, &p, &results).await?;
     println!("\n{}", cross::matrix_table(&cross));
-    let timeline = timeline::run(a, &p).await?;
+    let timeline = timeline::run(cur, a, &p).await?;
     println!("\n{}", timeline::summary(&timeline));
     let path = a.out.join("bench.json");
     std::fs::write(
@@ -274,48 +314,40 @@ fn fresh_dir(out: &Path, stack: &str, method: &str) -> anyhow::Result<PathBuf> {
     Ok(d)
 }
 
-/// A fresh robot running `stack`, once every metric's topic has delivered
-/// messages; on failure the robot is closed (nodes stopped, cgroups removed).
-async fn start(
+/// A fresh robot in `cur` running `stack`, once every metric's topic has
+/// delivered messages (the previous robot is closed first; on failure the
+/// caller's owner closes this one).
+async fn start<'a>(
+    cur: &'a mut Current,
     out: &Path,
     name: &str,
     method: &str,
     stack: &RobotStack,
     defs: &[MetricDef],
-) -> anyhow::Result<PrivateRobot> {
-    let robot = PrivateRobot::start(&fresh_dir(out, name, method)?).await?;
-    let up = async {
-        robot
-            .apply(&serde_json::to_value(stack)?, Kind::RobotStack)
-            .await?;
-        let silent = wait_until_up(robot.robot.as_ref(), defs, FLOW_TIMEOUT).await;
-        let core_silent: Vec<&String> = silent
-            .iter()
-            .filter(|n| defs.iter().any(|d| d.core && &d.name == *n))
-            .collect();
-        anyhow::ensure!(
-            core_silent.is_empty(),
-            "{name}: no messages on {} within {} s (logs: {})",
-            silent.join(", "),
-            FLOW_TIMEOUT.as_secs(),
-            robot.dir.join("agent/logs").display()
+) -> anyhow::Result<&'a PrivateRobot> {
+    let robot = cur.start(&fresh_dir(out, name, method)?).await?;
+    robot
+        .apply(&serde_json::to_value(stack)?, Kind::RobotStack)
+        .await?;
+    let silent = wait_until_up(robot.robot.as_ref(), defs, FLOW_TIMEOUT).await;
+    let core_silent: Vec<&String> = silent
+        .iter()
+        .filter(|n| defs.iter().any(|d| d.core && &d.name == *n))
+        .collect();
+    anyhow::ensure!(
+        core_silent.is_empty(),
+        "{name}: no messages on {} within {} s (logs: {})",
+        silent.join(", "),
+        FLOW_TIMEOUT.as_secs(),
+        robot.dir.join("agent/logs").display()
+    );
+    if !silent.is_empty() {
+        println!(
+            "    {name}: no messages yet on {} (non-core; starved by the default config?)",
+            silent.join(", ")
         );
-        if !silent.is_empty() {
-            println!(
-                "    {name}: no messages yet on {} (non-core; starved by the default config?)",
-                silent.join(", ")
-            );
-        }
-        anyhow::Ok(())
     }
-    .await;
-    match up {
-        Ok(()) => Ok(robot),
-        Err(e) => {
-            robot.close().await?;
-            Err(e)
-        }
-    }
+    Ok(robot)
 }
 
 /// How long a fresh stack may take until every core metric's topic has flowed.
@@ -387,15 +419,16 @@ fn result(
 
 /// Default and random configs, on one robot.
 async fn untuned(
+    cur: &mut Current,
     a: &BenchArgs,
+    p: &Plan,
     name: &str,
     stack: &RobotStack,
     spec: &PerformanceSpec,
     defs: &[MetricDef],
-    window: u64,
-    random: usize,
 ) -> anyhow::Result<Vec<MethodResult>> {
-    let robot = start(&a.out, name, "untuned", stack, defs).await?;
+    let (window, random) = (p.window, p.random);
+    let robot = start(cur, &a.out, name, "untuned", stack, defs).await?;
     let out = async {
         let mut out = Vec::new();
         let r = measure_defs(robot.robot.as_ref(), defs, window).await?;
@@ -442,28 +475,29 @@ async fn untuned(
         anyhow::Ok(out)
     }
     .await;
-    robot.close().await?;
+    cur.close().await?;
     out
 }
 
 /// A tuning run on a fresh robot, then a measurement of what it applied.
 async fn tuned(
+    cur: &mut Current,
     a: &BenchArgs,
     name: &str,
     method: &str,
     stack: &RobotStack,
     spec: &PerformanceSpec,
-    defs: &[MetricDef],
     window: u64,
 ) -> anyhow::Result<MethodResult> {
-    let robot = start(&a.out, name, method, stack, defs).await?;
+    let defs = &measure::metric_defs(&stack.spec, &spec.spec);
+    let robot = start(cur, &a.out, name, method, stack, defs).await?;
     let out = async {
         let started = Instant::now();
         robot
             .apply(&serde_json::to_value(spec)?, Kind::PerformanceSpec)
             .await?;
         let (st, seen, settled_secs) = follow(
-            &robot,
+            robot,
             &spec.metadata.name,
             started,
             Duration::from_secs(a.timeout_secs),
@@ -482,7 +516,7 @@ async fn tuned(
         ))
     }
     .await;
-    robot.close().await?;
+    cur.close().await?;
     out
 }
 

@@ -21,6 +21,7 @@ use configbot_manifests::Kind;
 use hyper::Method;
 use serde::Serialize;
 
+use super::owner::Current;
 use super::{BenchArgs, Plan, example_for, follow, outcome, start};
 use crate::cli::demo::{PrivateRobot, measure_defs};
 use crate::report::svg::{Chart, Mark, Rule, Series, colors};
@@ -483,6 +484,16 @@ async fn wait_for_stack(
     Ok(Some(note))
 }
 
+/// Sets its flag when dropped: the spawned loops end with the run, also
+/// when the run is cancelled.
+struct StopOnDrop(Arc<AtomicBool>);
+
+impl Drop for StopOnDrop {
+    fn drop(&mut self) {
+        self.0.store(true, Ordering::Relaxed);
+    }
+}
+
 /// Sleeps until `secs` after `t0`.
 async fn until(t0: Instant, secs: f64) {
     let left = secs - t0.elapsed().as_secs_f64();
@@ -492,7 +503,7 @@ async fn until(t0: Instant, secs: f64) {
 }
 
 /// Runs the context switch on a fresh robot.
-pub async fn run(a: &BenchArgs, p: &Plan) -> anyhow::Result<Timeline> {
+pub async fn run(cur: &mut Current, a: &BenchArgs, p: &Plan) -> anyhow::Result<Timeline> {
     let (basic, mut basic_spec) = example_for("basic-nav", p)?;
     let (terrain, mut terrain_spec) = example_for("terrain-nav", p)?;
     if let Some(m) = p.timeline_trials {
@@ -510,8 +521,11 @@ pub async fn run(a: &BenchArgs, p: &Plan) -> anyhow::Result<Timeline> {
         "==> timeline: basic-nav, then terrain-nav at t ≈ {} s, then basic-nav again",
         p.switch_at
     );
-    let robot = start(&a.out, "timeline", "robot", &basic, &defs).await?;
+    let robot = start(cur, &a.out, "timeline", "robot", &basic, &defs).await?;
     let stop = Arc::new(AtomicBool::new(false));
+    // The recorder and watcher stop too when the bench is interrupted (this
+    // future dropped).
+    let _stop_on_drop = StopOnDrop(stop.clone());
     let t0 = Instant::now();
     let t0_ms = now_ms();
     let recorder = tokio::spawn(record(robot.robot.clone(), defs.clone(), stop.clone()));
@@ -529,17 +543,17 @@ pub async fn run(a: &BenchArgs, p: &Plan) -> anyhow::Result<Timeline> {
         let since = |i: Instant| i.duration_since(t0).as_secs_f64();
         let basic_json = serde_json::to_value(&basic_spec)?;
         robot.apply(&basic_json, Kind::PerformanceSpec).await?;
-        let (_, _, s) = follow(&robot, &basic_spec.metadata.name, t0, timeout).await?;
+        let (_, _, s) = follow(robot, &basic_spec.metadata.name, t0, timeout).await?;
         until(t0, (p.switch_at as f64).max(s + p.hold as f64)).await;
 
         println!("==> timeline: switching the robot to terrain-nav");
         let at = Instant::now();
-        delete(&robot, Kind::PerformanceSpec, &basic_spec.metadata.name).await?;
+        delete(robot, Kind::PerformanceSpec, &basic_spec.metadata.name).await?;
         robot
             .apply(&serde_json::to_value(&terrain)?, Kind::RobotStack)
             .await?;
         let mut notes: Vec<String> = Vec::new();
-        notes.extend(wait_for_stack(&robot, &terrain, &defs).await?);
+        notes.extend(wait_for_stack(robot, &terrain, &defs).await?);
         let up = Instant::now();
         robot
             .apply(&serde_json::to_value(&terrain_spec)?, Kind::PerformanceSpec)
@@ -549,14 +563,14 @@ pub async fn run(a: &BenchArgs, p: &Plan) -> anyhow::Result<Timeline> {
             stack_up: since(up),
             spec_applied: since(Instant::now()),
         };
-        let (_, _, s) = follow(&robot, &terrain_spec.metadata.name, at, timeout).await?;
+        let (_, _, s) = follow(robot, &terrain_spec.metadata.name, at, timeout).await?;
         until(at, s + p.hold as f64).await;
 
         println!("==> timeline: switching the robot back to basic-nav");
         let at = Instant::now();
-        delete(&robot, Kind::PerformanceSpec, &terrain_spec.metadata.name).await?;
-        delete(&robot, Kind::RobotStack, &terrain.metadata.name).await?;
-        notes.extend(wait_for_stack(&robot, &basic, &defs).await?);
+        delete(robot, Kind::PerformanceSpec, &terrain_spec.metadata.name).await?;
+        delete(robot, Kind::RobotStack, &terrain.metadata.name).await?;
+        notes.extend(wait_for_stack(robot, &basic, &defs).await?);
         let up = Instant::now();
         robot.apply(&basic_json, Kind::PerformanceSpec).await?;
         let sw2 = Switch {
@@ -564,14 +578,14 @@ pub async fn run(a: &BenchArgs, p: &Plan) -> anyhow::Result<Timeline> {
             stack_up: since(up),
             spec_applied: since(Instant::now()),
         };
-        let (_, _, s) = follow(&robot, &basic_spec.metadata.name, at, timeout).await?;
+        let (_, _, s) = follow(robot, &basic_spec.metadata.name, at, timeout).await?;
         until(at, s + p.hold as f64).await;
         anyhow::Ok((sw1, sw2, notes))
     }
     .await;
     stop.store(true, Ordering::Relaxed);
     let (recorded, watched) = (recorder.await, watcher.await);
-    robot.close().await?;
+    cur.close().await?;
     let (sw1, sw2, notes) = scenario?;
     let reports = recorded?;
     let (samples, events) = watched?;

@@ -1,0 +1,58 @@
+//! The one owner of the bench's current robot. Every step of `configbot
+//! bench` runs on a fresh robot (nodes in `configbot-demo-<pid>` cgroups);
+//! the steps borrow it from here instead of holding it, so when the user
+//! interrupts the bench (Ctrl-C, SIGTERM) [`bench::run`](super::run) can
+//! still stop its nodes and remove its cgroups after dropping the step.
+
+use std::path::Path;
+
+use tokio::task::JoinHandle;
+
+use crate::cli::demo::PrivateRobot;
+
+/// The robot a bench step runs on, or none between steps.
+#[derive(Default)]
+pub struct Current {
+    robot: Option<PrivateRobot>,
+    /// A robot still starting: its start runs as its own task, so an
+    /// interruption mid-start does not drop a half-started runtime; [`close`]
+    /// waits for it and closes it.
+    ///
+    /// [`close`]: Current::close
+    starting: Option<JoinHandle<anyhow::Result<PrivateRobot>>>,
+}
+
+impl Current {
+    /// Closes the previous robot (if any), starts a fresh one with its files
+    /// in `dir` and lends it out until the next [`start`](Current::start) or
+    /// [`close`](Current::close).
+    pub async fn start(&mut self, dir: &Path) -> anyhow::Result<&PrivateRobot> {
+        self.close().await?;
+        let dir = dir.to_path_buf();
+        let handle = self
+            .starting
+            .insert(tokio::spawn(async move { PrivateRobot::start(&dir).await }));
+        let started = handle.await;
+        self.starting = None;
+        Ok(self.robot.insert(started??))
+    }
+
+    /// Stops the current robot's control plane and nodes and removes its
+    /// cgroups (waiting for one still starting); nothing when there is none.
+    pub async fn close(&mut self) -> anyhow::Result<()> {
+        if let Some(h) = self.starting.take()
+            && let Ok(Ok(r)) = h.await
+        {
+            self.robot = Some(r);
+        }
+        match self.robot.take() {
+            Some(r) => r.close().await,
+            None => Ok(()),
+        }
+    }
+
+    /// Whether a robot is running or starting.
+    pub fn is_open(&self) -> bool {
+        self.robot.is_some() || self.starting.is_some()
+    }
+}

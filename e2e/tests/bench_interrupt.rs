@@ -1,0 +1,167 @@
+//! Ctrl-C on `configbot bench`: the bench stops its current robot's nodes,
+//! removes its cgroup subtree (`configbot-demo-<its pid>`) and exits
+//! non-zero saying it was interrupted. Real processes and cgroups: the test
+//! waits until the bench's robot runs nodes, sends SIGINT, and checks that
+//! the process exits, the subtree is gone in every v1 hierarchy and the
+//! nodes' processes are gone. The guard kills the bench and removes what it
+//! left if the test fails.
+
+mod common;
+
+use std::path::PathBuf;
+use std::process::{Child, Command, ExitStatus};
+use std::time::{Duration, Instant};
+
+/// The bench process; killed, and its cgroups and nodes removed, on drop.
+struct Bench {
+    child: Child,
+}
+
+impl Bench {
+    fn root(&self) -> String {
+        format!("configbot-demo-{}", self.child.id())
+    }
+
+    fn wait_exit(&mut self, timeout: Duration) -> Option<ExitStatus> {
+        let deadline = Instant::now() + timeout;
+        while Instant::now() < deadline {
+            if let Ok(Some(s)) = self.child.try_wait() {
+                return Some(s);
+            }
+            std::thread::sleep(Duration::from_millis(50));
+        }
+        None
+    }
+}
+
+impl Drop for Bench {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+        common::nuke(&self.root());
+        for dir in cgroup_dirs(&self.root()) {
+            let _ = std::fs::remove_dir(dir);
+        }
+    }
+}
+
+/// The subtree root in each v1 hierarchy, where it exists.
+fn cgroup_dirs(root: &str) -> Vec<PathBuf> {
+    let Ok(l) = configbot_cgroups::Layout::detect() else {
+        return Vec::new();
+    };
+    [l.v1_cpu, l.v1_cpuacct, l.v1_cpuset]
+        .into_iter()
+        .flatten()
+        .map(|m| m.join(root))
+        .filter(|d| d.exists())
+        .collect()
+}
+
+/// Every pid in a cgroup directory and its descendants.
+fn pids_below(dir: &std::path::Path) -> Vec<u32> {
+    let mut out: Vec<u32> = std::fs::read_to_string(dir.join("cgroup.procs"))
+        .unwrap_or_default()
+        .lines()
+        .filter_map(|l| l.trim().parse().ok())
+        .collect();
+    for e in std::fs::read_dir(dir).into_iter().flatten().flatten() {
+        if e.file_type().is_ok_and(|t| t.is_dir()) {
+            out.extend(pids_below(&e.path()));
+        }
+    }
+    out
+}
+
+/// Whether `pid` is a live process (not gone, not a zombie).
+fn alive(pid: u32) -> bool {
+    std::fs::read_to_string(format!("/proc/{pid}/stat"))
+        .ok()
+        .and_then(|s| {
+            s.rsplit_once(')')
+                .map(|(_, rest)| rest.trim_start().to_string())
+        })
+        .is_some_and(|rest| !rest.starts_with('Z'))
+}
+
+#[test]
+fn ctrl_c_stops_the_bench_robot_and_removes_its_cgroups() {
+    let Some(cpu) = configbot_cgroups::Layout::detect()
+        .ok()
+        .and_then(|l| l.v1_cpu)
+    else {
+        eprintln!("no cgroup v1 cpu hierarchy: skipped");
+        return;
+    };
+    let _serial = common::serial();
+    let dir = tempfile::tempdir().expect("temp dir");
+    let (out_log, err_log) = (dir.path().join("stdout"), dir.path().join("stderr"));
+    let child = Command::new(common::configbot_bin())
+        .args(["bench", "--quick", "--out"])
+        .arg(dir.path().join("out"))
+        .env("ROS_HOSTNAME", "localhost")
+        .stdout(std::fs::File::create(&out_log).expect("stdout log"))
+        .stderr(std::fs::File::create(&err_log).expect("stderr log"))
+        .spawn()
+        .expect("start configbot bench");
+    let mut bench = Bench { child };
+    let subtree = cpu.join(bench.root());
+    let logs = || {
+        format!(
+            "stdout:\n{}\nstderr:\n{}",
+            std::fs::read_to_string(&out_log).unwrap_or_default(),
+            std::fs::read_to_string(&err_log).unwrap_or_default()
+        )
+    };
+
+    // Wait until the robot's nodes run in the subtree (a few simnodes).
+    let deadline = Instant::now() + Duration::from_secs(120);
+    let nodes = loop {
+        let pids = pids_below(&subtree);
+        if pids.len() >= 2 {
+            break pids;
+        }
+        if let Ok(Some(s)) = bench.child.try_wait() {
+            panic!("the bench exited ({s}) before its robot ran: {}", logs());
+        }
+        assert!(
+            Instant::now() < deadline,
+            "no nodes in {} within 120 s: {}",
+            subtree.display(),
+            logs()
+        );
+        std::thread::sleep(Duration::from_millis(100));
+    };
+    assert!(nodes.iter().all(|&p| alive(p)));
+
+    let pid = libc::pid_t::try_from(bench.child.id()).expect("pid");
+    #[allow(unsafe_code)]
+    // SAFETY: kill(2) on the child this test started and still owns (not reaped).
+    let rc = unsafe { libc::kill(pid, libc::SIGINT) };
+    assert_eq!(rc, 0, "send SIGINT");
+    let sent = Instant::now();
+    let status = bench
+        .wait_exit(Duration::from_secs(60))
+        .unwrap_or_else(|| panic!("the bench did not exit within 60 s of SIGINT: {}", logs()));
+    let took = sent.elapsed();
+    assert!(!status.success(), "exit status {status}: {}", logs());
+    assert_eq!(status.code(), Some(130), "{}", logs());
+    let err = std::fs::read_to_string(&err_log).unwrap_or_default();
+    assert!(err.contains("interrupted"), "{}", logs());
+
+    // The subtree is gone in every hierarchy, and so are the nodes.
+    let left = cgroup_dirs(&bench.root());
+    assert!(left.is_empty(), "left behind: {left:?}: {}", logs());
+    let deadline = Instant::now() + Duration::from_secs(5);
+    let mut running: Vec<u32> = nodes.clone();
+    while !running.is_empty() && Instant::now() < deadline {
+        running.retain(|&p| alive(p));
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    assert!(running.is_empty(), "nodes still running: {running:?}");
+    eprintln!(
+        "bench interrupted after its robot ran {} node processes: exited {status} {:.1} s after SIGINT, subtree and nodes gone",
+        nodes.len(),
+        took.as_secs_f64()
+    );
+}
