@@ -1,6 +1,8 @@
 //! A small SVG chart writer for the demo's and the benchmark's plots: lines,
-//! point markers, crosses (infeasible trials), histogram bars and labelled
-//! horizontal reference lines (targets). Pure: a [`Chart`] in, SVG text out.
+//! point markers, crosses (infeasible trials), rings (rejected trials),
+//! histogram bars and labelled horizontal reference lines (targets) and
+//! vertical ones (moments), whose labels are staggered in rows when they
+//! would overlap ([`label_rows`]). Pure: a [`Chart`] in, SVG text out.
 
 use std::fmt::Write as _;
 
@@ -15,6 +17,8 @@ pub enum Mark {
     Dot,
     /// Crosses (infeasible trials).
     Cross,
+    /// Hollow circles (trials whose config failed verification).
+    Ring,
     /// Vertical bars from zero; x is the bar's left edge, width from `Chart::bar_width`.
     Bar,
 }
@@ -56,6 +60,37 @@ const LEFT: f64 = 70.0;
 const RIGHT: f64 = 170.0;
 const TOP: f64 = 40.0;
 const BOTTOM: f64 = 50.0;
+/// Estimated width of one label character at font-size 12.
+const CHAR_W: f64 = 6.5;
+/// Height of one row of vertical-rule labels.
+const LABEL_ROW: f64 = 14.0;
+/// Horizontal gap kept between two labels on the same row.
+const LABEL_GAP: f64 = 4.0;
+
+/// The row (0 = top) of each label, given each label's left edge and width
+/// in pixels: in left-to-right order each label takes the first row whose
+/// labels all end (plus [`LABEL_GAP`]) before it starts, so labels of rules
+/// close together never overlap (pure).
+pub fn label_rows(spans: &[(f64, f64)]) -> Vec<usize> {
+    let mut order: Vec<usize> = (0..spans.len()).collect();
+    order.sort_by(|&a, &b| spans[a].0.total_cmp(&spans[b].0));
+    // Right end of the last label placed on each row.
+    let mut ends: Vec<f64> = Vec::new();
+    let mut rows = vec![0; spans.len()];
+    for i in order {
+        let (left, width) = spans[i];
+        let row = match ends.iter().position(|&e| e + LABEL_GAP <= left) {
+            Some(r) => r,
+            None => {
+                ends.push(f64::NEG_INFINITY);
+                ends.len() - 1
+            }
+        };
+        ends[row] = left + width;
+        rows[i] = row;
+    }
+    rows
+}
 
 /// Colors used by the reports, named for what they show.
 pub mod colors {
@@ -63,6 +98,7 @@ pub mod colors {
     pub const NON_CORE: &str = "#ff7f0e";
     pub const FEASIBLE: &str = "#2ca02c";
     pub const INFEASIBLE: &str = "#d62728";
+    pub const REJECTED: &str = "#9467bd";
     pub const BEST: &str = "#111111";
     pub const OTHER: &str = "#7f7f7f";
 }
@@ -129,10 +165,18 @@ impl Chart {
             (TOP + H - BOTTOM) / 2.0,
             esc(&self.y_label)
         );
+        let spans: Vec<(f64, f64)> = self
+            .rules
+            .iter()
+            .filter(|r| r.vertical)
+            .map(|r| (sx(r.value) + 3.0, r.label.chars().count() as f64 * CHAR_W))
+            .collect();
+        let mut rows = label_rows(&spans).into_iter();
         for r in &self.rules {
             let (a, b, c, d, tx, ty) = if r.vertical {
                 let x = sx(r.value);
-                (x, TOP, x, H - BOTTOM, x + 3.0, TOP + 12.0)
+                let row = rows.next().unwrap_or(0) as f64;
+                (x, TOP, x, H - BOTTOM, x + 3.0, TOP + 12.0 + row * LABEL_ROW)
             } else {
                 let y = sy(r.value);
                 (LEFT, y, W - RIGHT, y, W - RIGHT + 4.0, y + 4.0)
@@ -188,6 +232,16 @@ impl Chart {
                         );
                     }
                 }
+                Mark::Ring => {
+                    for &(x, y) in &se.points {
+                        let _ = write!(
+                            s,
+                            r#"<circle class="ring" cx="{:.1}" cy="{:.1}" r="5" fill="white" stroke="{c}" stroke-width="2"/>"#,
+                            sx(x),
+                            sy(y)
+                        );
+                    }
+                }
                 Mark::Bar => {
                     for &(x, y) in &se.points {
                         let (l, r) = (sx(x), sx(x + self.bar_width));
@@ -203,13 +257,31 @@ impl Chart {
                     }
                 }
             }
-            // Legend.
+            // Legend: the series' own mark for point series, a swatch otherwise.
             let ly = TOP + 10.0 + 18.0 * i as f64;
+            let (gx, gy) = (W - RIGHT + 16.0, ly - 4.0);
+            let _ = match se.mark {
+                Mark::Dot => write!(s, r#"<circle cx="{gx}" cy="{gy}" r="4" fill="{c}"/>"#),
+                Mark::Ring => write!(
+                    s,
+                    r#"<circle cx="{gx}" cy="{gy}" r="5" fill="white" stroke="{c}" stroke-width="2"/>"#
+                ),
+                Mark::Cross => write!(
+                    s,
+                    r#"<path d="M{},{} l8,8 m0,-8 l-8,8" stroke="{c}" stroke-width="2"/>"#,
+                    gx - 4.0,
+                    gy - 4.0
+                ),
+                Mark::Line | Mark::Step | Mark::Bar => write!(
+                    s,
+                    r#"<rect x="{}" y="{}" width="12" height="12" fill="{c}"/>"#,
+                    W - RIGHT + 10.0,
+                    ly - 10.0
+                ),
+            };
             let _ = write!(
                 s,
-                r#"<rect x="{}" y="{}" width="12" height="12" fill="{c}"/><text x="{}" y="{}">{}</text>"#,
-                W - RIGHT + 10.0,
-                ly - 10.0,
+                r#"<text x="{}" y="{}">{}</text>"#,
                 W - RIGHT + 28.0,
                 ly,
                 esc(&se.name)
@@ -362,6 +434,60 @@ mod tests {
             })
             .collect();
         assert!(cy[1] < cy[0], "y=4 must be above y=3: {cy:?}");
+    }
+
+    #[test]
+    fn close_rule_labels_are_staggered_and_far_ones_share_the_top_row() {
+        // Three labels 60 px wide: the 2nd starts 10 px after the 1st (overlaps),
+        // the 3rd after both ended; the 4th overlaps only the 3rd.
+        let spans = [(100.0, 60.0), (110.0, 60.0), (200.0, 60.0), (230.0, 60.0)];
+        assert_eq!(label_rows(&spans), [0, 1, 0, 1]);
+        // Input order does not matter: rows follow x.
+        assert_eq!(label_rows(&[(110.0, 60.0), (100.0, 60.0)]), [1, 0]);
+        // Three labels on top of each other take three rows.
+        assert_eq!(label_rows(&[(50.0, 40.0); 3]), [0, 1, 2]);
+        // Touching within the gap counts as overlapping; past it, not.
+        assert_eq!(label_rows(&[(0.0, 10.0), (12.0, 5.0)]), [0, 1]);
+        assert_eq!(label_rows(&[(0.0, 10.0), (14.0, 5.0)]), [0, 0]);
+        assert!(label_rows(&[]).is_empty());
+
+        // In the SVG: two moments 0.3 s apart get labels on different rows.
+        let mut c = chart();
+        c.rules = ["→ terrain-nav", "detected"]
+            .iter()
+            .zip([2.0, 2.03])
+            .map(|(l, v)| Rule {
+                label: l.to_string(),
+                value: v,
+                vertical: true,
+            })
+            .collect();
+        let svg = c.to_svg();
+        let y_of = |label: &str| -> f64 {
+            let end = svg.find(&format!(">{label}</text>")).unwrap();
+            let tag = &svg[svg[..end].rfind("<text").unwrap()..end];
+            let p = &tag[tag.find("y=\"").unwrap() + 3..];
+            p[..p.find('"').unwrap()].parse().unwrap()
+        };
+        assert_eq!(y_of("detected") - y_of("→ terrain-nav"), LABEL_ROW);
+    }
+
+    #[test]
+    fn rings_are_drawn_and_shown_in_the_legend() {
+        let mut c = chart();
+        c.series.push(Series {
+            name: "rejected".into(),
+            mark: Mark::Ring,
+            color: colors::REJECTED,
+            points: vec![(4.0, 6.0)],
+        });
+        let svg = c.to_svg();
+        assert_eq!(svg.matches(r#"class="ring""#).count(), 1);
+        // The legend entry draws a ring too (unclassed) right before the name.
+        let name = svg.find(">rejected</text>").unwrap();
+        let glyph = &svg[svg[..name].rfind("<circle").unwrap()..name];
+        assert!(!glyph.contains("class="), "{glyph}");
+        assert!(glyph.contains(r#"fill="white" stroke="#), "{glyph}");
     }
 
     #[test]
