@@ -1,4 +1,6 @@
 //! Reports of tuning runs and benchmarks for people: SVG charts
-//! ([`svg`]). Pure: data in, text out; the callers write the files.
+//! ([`svg`]) and the optimisation-progress chart ([`progress`]). Pure: data
+//! in, text out; the callers write the files.
 
+pub mod progress;
 pub mod svg;

@@ -25,8 +25,7 @@ use serde_json::Value;
 
 use self::owner::Current;
 use super::demo::{
-    PrivateRobot, example, histogram_chart, measure_defs, print_eval, print_trial, progress_chart,
-    settled,
+    PrivateRobot, example, histogram_chart, measure_defs, print_eval, print_trial, settled,
 };
 use crate::tuning::knobs;
 use crate::tuning::measure::{self, Evaluation, MetricDef};
@@ -111,6 +110,8 @@ pub struct TuningCost {
     /// (Monitoring), or Unsat.
     pub final_config_seconds: f64,
     pub trial_history: Value,
+    /// Indices of trials whose config failed verification (status `rejectedTrials`).
+    pub rejected_trials: Vec<u64>,
 }
 
 /// Status poll interval while following a tuning run.
@@ -137,6 +138,7 @@ pub fn tuning_cost(status: &Value, seen: &[f64], settled_secs: f64) -> TuningCos
         final_trial_seconds: at(best),
         final_config_seconds: settled_secs,
         trial_history: history,
+        rejected_trials: crate::report::progress::rejected(status),
     }
 }
 
@@ -577,7 +579,7 @@ fn write_plots(
     let of = |m: &str| results.iter().find(|r| r.stack == name && r.method == m);
     if let Some(t) = of("configbot").and_then(|r| r.tuning.as_ref()) {
         let trials = t.trial_history.as_array().cloned().unwrap_or_default();
-        let mut c = progress_chart(&trials);
+        let mut c = crate::report::progress::chart(&trials, &t.rejected_trials);
         c.title = format!("{name}: tuning progress");
         std::fs::write(out.join(format!("{name}-progress.svg")), c.to_svg())?;
     }
@@ -608,6 +610,7 @@ mod tests {
 
     fn settled_status() -> Value {
         json!({"phase": "Monitoring", "trials": 4, "bestTrial": 3, "bestConfig": {},
+            "rejectedTrials": [1],
             "trialHistory": [
                 {"index": 0, "feasible": false}, {"index": 1, "feasible": true},
                 {"index": 2, "feasible": false}, {"index": 3, "feasible": true}]})
@@ -627,6 +630,7 @@ mod tests {
             (Some(4), Some(19.2))
         );
         assert_eq!(c.final_config_seconds, 30.0);
+        assert_eq!(c.rejected_trials, [1]);
         // Unsat: no best trial, no feasible one.
         let u = tuning_cost(
             &json!({"phase": "Unsat", "trials": 1, "trialHistory": [{"index": 0, "feasible": false}]}),
