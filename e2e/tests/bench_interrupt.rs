@@ -84,8 +84,16 @@ fn alive(pid: u32) -> bool {
         .is_some_and(|rest| !rest.starts_with('Z'))
 }
 
-#[test]
-fn ctrl_c_stops_the_bench_robot_and_removes_its_cgroups() {
+/// Starts `configbot bench --quick`, waits (at most `wait`) until `ready`
+/// holds for the node pids in its subtree and its stdout, sends `signal`,
+/// and checks the bench exits 130 saying it was interrupted, with its
+/// subtree and node processes gone.
+fn interrupt_when(
+    signal: libc::c_int,
+    wait: Duration,
+    what: &str,
+    ready: impl Fn(&[u32], &str) -> bool,
+) {
     let Some(cpu) = configbot_cgroups::Layout::detect()
         .ok()
         .and_then(|l| l.v1_cpu)
@@ -106,28 +114,28 @@ fn ctrl_c_stops_the_bench_robot_and_removes_its_cgroups() {
         .expect("start configbot bench");
     let mut bench = Bench { child };
     let subtree = cpu.join(bench.root());
+    let stdout = || std::fs::read_to_string(&out_log).unwrap_or_default();
     let logs = || {
         format!(
             "stdout:\n{}\nstderr:\n{}",
-            std::fs::read_to_string(&out_log).unwrap_or_default(),
+            stdout(),
             std::fs::read_to_string(&err_log).unwrap_or_default()
         )
     };
 
-    // Wait until the robot's nodes run in the subtree (a few simnodes).
-    let deadline = Instant::now() + Duration::from_secs(120);
+    let started = Instant::now();
     let nodes = loop {
         let pids = pids_below(&subtree);
-        if pids.len() >= 2 {
+        if ready(&pids, &stdout()) {
             break pids;
         }
         if let Ok(Some(s)) = bench.child.try_wait() {
-            panic!("the bench exited ({s}) before its robot ran: {}", logs());
+            panic!("the bench exited ({s}) before {what}: {}", logs());
         }
         assert!(
-            Instant::now() < deadline,
-            "no nodes in {} within 120 s: {}",
-            subtree.display(),
+            started.elapsed() < wait,
+            "not {what} within {} s: {}",
+            wait.as_secs(),
             logs()
         );
         std::thread::sleep(Duration::from_millis(100));
@@ -137,12 +145,15 @@ fn ctrl_c_stops_the_bench_robot_and_removes_its_cgroups() {
     let pid = libc::pid_t::try_from(bench.child.id()).expect("pid");
     #[allow(unsafe_code)]
     // SAFETY: kill(2) on the child this test started and still owns (not reaped).
-    let rc = unsafe { libc::kill(pid, libc::SIGINT) };
-    assert_eq!(rc, 0, "send SIGINT");
+    let rc = unsafe { libc::kill(pid, signal) };
+    assert_eq!(rc, 0, "send signal {signal}");
     let sent = Instant::now();
-    let status = bench
-        .wait_exit(Duration::from_secs(60))
-        .unwrap_or_else(|| panic!("the bench did not exit within 60 s of SIGINT: {}", logs()));
+    let status = bench.wait_exit(Duration::from_secs(60)).unwrap_or_else(|| {
+        panic!(
+            "the bench did not exit within 60 s of signal {signal}: {}",
+            logs()
+        )
+    });
     let took = sent.elapsed();
     assert!(!status.success(), "exit status {status}: {}", logs());
     assert_eq!(status.code(), Some(130), "{}", logs());
@@ -160,8 +171,37 @@ fn ctrl_c_stops_the_bench_robot_and_removes_its_cgroups() {
     }
     assert!(running.is_empty(), "nodes still running: {running:?}");
     eprintln!(
-        "bench interrupted after its robot ran {} node processes: exited {status} {:.1} s after SIGINT, subtree and nodes gone",
+        "bench interrupted (signal {signal}) {:.1} s after start, {what}, with {} node processes: exited {status} {:.1} s later, subtree and nodes gone",
+        sent.duration_since(started).as_secs_f64(),
         nodes.len(),
         took.as_secs_f64()
+    );
+}
+
+#[test]
+fn ctrl_c_stops_the_bench_robot_and_removes_its_cgroups() {
+    // As soon as the first robot runs a few nodes.
+    interrupt_when(
+        libc::SIGINT,
+        Duration::from_secs(120),
+        "the first robot's nodes ran",
+        |pids, _| pids.len() >= 2,
+    );
+}
+
+#[test]
+fn sigterm_mid_tuning_stops_the_robot_and_removes_its_cgroups() {
+    // While the cgroup-only run tunes (its spec applied on its own robot).
+    interrupt_when(
+        libc::SIGTERM,
+        Duration::from_secs(240),
+        "the cgroup-only run was tuning",
+        |pids, out| {
+            pids.len() >= 2
+                && out
+                    .split("==> basic-nav: cgroup-only")
+                    .nth(1)
+                    .is_some_and(|after| after.contains("trial"))
+        },
     );
 }

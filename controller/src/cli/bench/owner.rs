@@ -20,6 +20,11 @@ pub struct Current {
     ///
     /// [`close`]: Current::close
     starting: Option<JoinHandle<anyhow::Result<PrivateRobot>>>,
+    /// A robot being closed, also as its own task, so an interruption
+    /// mid-close does not leave it half torn down; [`close`] waits for it.
+    ///
+    /// [`close`]: Current::close
+    closing: Option<JoinHandle<anyhow::Result<()>>>,
 }
 
 impl Current {
@@ -38,21 +43,32 @@ impl Current {
     }
 
     /// Stops the current robot's control plane and nodes and removes its
-    /// cgroups (waiting for one still starting); nothing when there is none.
+    /// cgroups (waiting for one still starting or closing); nothing when
+    /// there is none. Each await leaves the pending task in `self`, so a
+    /// cancelled call is finished by the next one.
     pub async fn close(&mut self) -> anyhow::Result<()> {
-        if let Some(h) = self.starting.take()
-            && let Ok(Ok(r)) = h.await
-        {
-            self.robot = Some(r);
+        if let Some(h) = self.starting.as_mut() {
+            let started = h.await;
+            self.starting = None;
+            if let Ok(Ok(r)) = started {
+                self.robot = Some(r);
+            }
         }
-        match self.robot.take() {
-            Some(r) => r.close().await,
+        if let Some(r) = self.robot.take() {
+            self.closing = Some(tokio::spawn(r.close()));
+        }
+        match self.closing.as_mut() {
+            Some(h) => {
+                let closed = h.await;
+                self.closing = None;
+                closed?
+            }
             None => Ok(()),
         }
     }
 
-    /// Whether a robot is running or starting.
+    /// Whether a robot is running, starting or closing.
     pub fn is_open(&self) -> bool {
-        self.robot.is_some() || self.starting.is_some()
+        self.robot.is_some() || self.starting.is_some() || self.closing.is_some()
     }
 }
