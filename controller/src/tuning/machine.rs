@@ -30,6 +30,11 @@ use super::outcome::{list_or_none, observation, problem, remediate, unsat_reason
 pub const SATISFIED: f64 = 0.99;
 /// First part of a trial window, after which a clearly infeasible trial stops.
 const EARLY_STOP_MS: u64 = 2000;
+/// When the best trial fails verification, its non-core knobs are moved this
+/// fraction of the way toward their minimum per step ...
+pub const BACKOFF_STEP: f64 = 0.8;
+/// ... while the fraction kept stays at least this (three steps: 80, 64, 51 %).
+pub const BACKOFF_MIN: f64 = 0.5;
 
 /// What the run knows that does not change within a step.
 #[derive(Debug, Clone)]
@@ -73,6 +78,10 @@ impl Env<'_> {
 pub enum Candidate {
     /// A trial of this run (index into `Run::trials`).
     Trial { index: usize },
+    /// The trial `index`, which failed verification, with every knob that only
+    /// restricts a non-core app at `fraction` of the way from its minimum to
+    /// the trial's value (see [`KnobSpace::backed_off`]).
+    Backoff { index: usize, fraction: f64 },
     /// The baseline config (already good, or no knobs to tune).
     Baseline,
     /// A config from the library for this context.
@@ -107,6 +116,12 @@ pub enum State {
         partial: Option<MeasureReport>,
     },
     VerifyApply {
+        candidate: Candidate,
+        config: ResourceConfig,
+    },
+    /// Let the previous config's transients pass (a backlog of a non-core node,
+    /// queues) before verifying: a verification measures the candidate alone.
+    VerifySettle {
         candidate: Candidate,
         config: ResourceConfig,
     },
@@ -174,6 +189,9 @@ pub struct Run {
     /// The config this run last applied (what a baseline measures).
     #[serde(default)]
     pub current: ResourceConfig,
+    /// The measurement of the config being monitored, from its verification.
+    #[serde(default)]
+    pub verified: Option<Evaluation>,
 }
 
 impl Run {
@@ -212,6 +230,7 @@ impl Run {
             reason: None,
             library_hits: 0,
             current: ResourceConfig::default(),
+            verified: None,
         }
     }
 
@@ -222,7 +241,9 @@ impl Run {
             State::TrialSettle { x, config } | State::TrialProfile { x, config, .. } => {
                 State::TrialApply { x, config }
             }
-            State::Verify { candidate, config } => State::VerifyApply { candidate, config },
+            State::VerifySettle { candidate, config } | State::Verify { candidate, config } => {
+                State::VerifyApply { candidate, config }
+            }
             s => s,
         };
         self
@@ -235,7 +256,9 @@ impl Run {
             State::TrialApply { .. } | State::TrialSettle { .. } | State::TrialProfile { .. } => {
                 "Tuning"
             }
-            State::VerifyApply { .. } | State::Verify { .. } => "Satisfied",
+            State::VerifyApply { .. } | State::VerifySettle { .. } | State::Verify { .. } => {
+                "Satisfied"
+            }
             State::UnsatApply { .. }
             | State::Monitor {
                 satisfied: false, ..
@@ -320,7 +343,7 @@ pub fn effect(run: &Run, env: &Env<'_>) -> Effect {
             Effect::Apply(config.clone())
         }
         State::UnsatApply { config } => Effect::Apply(config.clone()),
-        State::TrialSettle { .. } => {
+        State::TrialSettle { .. } | State::VerifySettle { .. } => {
             Effect::Sleep(Duration::from_secs_f64(env.spec.tuning.settle_seconds))
         }
         State::TrialProfile { partial, .. } => {
@@ -457,6 +480,13 @@ pub fn step(mut run: Run, input: Input, env: &Env<'_>) -> (Run, Vec<Output>) {
             }
         }
         (State::VerifyApply { candidate, config }, Input::Applied) => {
+            if env.spec.tuning.settle_seconds > 0.0 {
+                State::VerifySettle { candidate, config }
+            } else {
+                State::Verify { candidate, config }
+            }
+        }
+        (State::VerifySettle { candidate, config }, Input::Slept) => {
             State::Verify { candidate, config }
         }
         (State::Verify { candidate, config }, Input::Measured(r)) => {
