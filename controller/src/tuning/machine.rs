@@ -394,6 +394,26 @@ pub fn step(mut run: Run, input: Input, env: &Env<'_>) -> (Run, Vec<Output>) {
                 skip_library: skip,
             }
         }
+        // The graph changed under a trial or a verification: its measurements
+        // are for another context, so the run starts over for the new one.
+        (
+            State::TrialApply { .. }
+            | State::TrialSettle { .. }
+            | State::TrialProfile { .. }
+            | State::VerifyApply { .. }
+            | State::VerifySettle { .. }
+            | State::Verify { .. },
+            Input::Trigger(t @ Trigger::ContextChanged { .. }),
+        ) => {
+            out.push(warning(
+                t.reason(),
+                format!("{}; the run starts over for the new context", t.message()),
+            ));
+            State::Observe {
+                trigger: t,
+                skip_library: false,
+            }
+        }
         (
             State::Observe {
                 skip_library,

@@ -451,6 +451,47 @@ fn transition_table() {
             vec!["ContextChanged"],
         ),
         (
+            "context change during a trial: start over",
+            trial(None),
+            Input::Trigger(Trigger::ContextChanged {
+                from: "a".into(),
+                to: "b".into(),
+                by: "graph check".into(),
+            }),
+            false,
+            true,
+            "Observe",
+            vec!["ContextChanged"],
+        ),
+        (
+            "context change during a verification: start over",
+            State::Verify {
+                candidate: Candidate::Trial { index: 0 },
+                config: cfg(),
+            },
+            Input::Trigger(Trigger::ContextChanged {
+                from: "a".into(),
+                to: "b".into(),
+                by: "graph check".into(),
+            }),
+            false,
+            true,
+            "Observe",
+            vec!["ContextChanged"],
+        ),
+        (
+            "a violation during a trial is the trial's own result, not a trigger",
+            trial(None),
+            Input::Trigger(Trigger::ConstraintViolated {
+                seconds: 5.0,
+                satisfaction: 0.0,
+            }),
+            false,
+            true,
+            "TrialProfile",
+            vec![],
+        ),
+        (
             "apps stopped: lift limits",
             State::RemediateStop {
                 apps: vec!["det".into()],
