@@ -25,6 +25,7 @@ use super::library;
 use super::measure::{self, Evaluation, MetricDef};
 use super::monitor::{ConstraintMonitor, Trigger};
 use super::outcome::{list_or_none, observation, problem, remediate, unsat_reason, verified};
+use super::settle::{self, Wait};
 
 /// Satisfaction a verified config must reach.
 pub const SATISFIED: f64 = 0.99;
@@ -106,9 +107,12 @@ pub enum State {
         x: Vec<f64>,
         config: ResourceConfig,
     },
+    /// Wait for the previous config's transients to pass (see [`settle`]).
     TrialSettle {
         x: Vec<f64>,
         config: ResourceConfig,
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        so_far: Option<MeasureReport>,
     },
     TrialProfile {
         x: Vec<f64>,
@@ -124,6 +128,8 @@ pub enum State {
     VerifySettle {
         candidate: Candidate,
         config: ResourceConfig,
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        so_far: Option<MeasureReport>,
     },
     Verify {
         candidate: Candidate,
@@ -238,12 +244,13 @@ impl Run {
     /// starts again from applying its config (nothing finished is repeated).
     pub fn resumed(mut self) -> Run {
         self.state = match self.state {
-            State::TrialSettle { x, config } | State::TrialProfile { x, config, .. } => {
+            State::TrialSettle { x, config, .. } | State::TrialProfile { x, config, .. } => {
                 State::TrialApply { x, config }
             }
-            State::VerifySettle { candidate, config } | State::Verify { candidate, config } => {
-                State::VerifyApply { candidate, config }
+            State::VerifySettle {
+                candidate, config, ..
             }
+            | State::Verify { candidate, config } => State::VerifyApply { candidate, config },
             s => s,
         };
         self
@@ -343,8 +350,11 @@ pub fn effect(run: &Run, env: &Env<'_>) -> Effect {
             Effect::Apply(config.clone())
         }
         State::UnsatApply { config } => Effect::Apply(config.clone()),
-        State::TrialSettle { .. } | State::VerifySettle { .. } => {
-            Effect::Sleep(Duration::from_secs_f64(env.spec.tuning.settle_seconds))
+        State::TrialSettle { so_far, .. } | State::VerifySettle { so_far, .. } => {
+            match settle::next(env.spec.tuning.settle_seconds, so_far.as_ref()) {
+                Wait::Sleep(d) => Effect::Sleep(d),
+                Wait::Measure { ms } => probe(ms),
+            }
         }
         State::TrialProfile { partial, .. } => {
             let total = env.trial_ms();
@@ -465,7 +475,11 @@ pub fn step(mut run: Run, input: Input, env: &Env<'_>) -> (Run, Vec<Output>) {
         }
         (State::TrialApply { x, config }, Input::Applied) => {
             if env.spec.tuning.settle_seconds > 0.0 {
-                State::TrialSettle { x, config }
+                State::TrialSettle {
+                    x,
+                    config,
+                    so_far: None,
+                }
             } else {
                 State::TrialProfile {
                     x,
@@ -474,11 +488,21 @@ pub fn step(mut run: Run, input: Input, env: &Env<'_>) -> (Run, Vec<Output>) {
                 }
             }
         }
-        (State::TrialSettle { x, config }, Input::Slept) => State::TrialProfile {
+        (State::TrialSettle { x, config, .. }, Input::Slept) => State::TrialProfile {
             x,
             config,
             partial: None,
         },
+        (State::TrialSettle { x, config, so_far }, Input::Measured(r)) => {
+            match settled(env, &defs, so_far.as_ref(), r, &mut out) {
+                None => State::TrialProfile {
+                    x,
+                    config,
+                    partial: None,
+                },
+                so_far => State::TrialSettle { x, config, so_far },
+            }
+        }
         (State::TrialProfile { x, config, partial }, Input::Measured(r)) => {
             let report = match &partial {
                 Some(p) => measure::concat(p, &r),
@@ -501,14 +525,36 @@ pub fn step(mut run: Run, input: Input, env: &Env<'_>) -> (Run, Vec<Output>) {
         }
         (State::VerifyApply { candidate, config }, Input::Applied) => {
             if env.spec.tuning.settle_seconds > 0.0 {
-                State::VerifySettle { candidate, config }
+                State::VerifySettle {
+                    candidate,
+                    config,
+                    so_far: None,
+                }
             } else {
                 State::Verify { candidate, config }
             }
         }
-        (State::VerifySettle { candidate, config }, Input::Slept) => {
-            State::Verify { candidate, config }
-        }
+        (
+            State::VerifySettle {
+                candidate, config, ..
+            },
+            Input::Slept,
+        ) => State::Verify { candidate, config },
+        (
+            State::VerifySettle {
+                candidate,
+                config,
+                so_far,
+            },
+            Input::Measured(r),
+        ) => match settled(env, &defs, so_far.as_ref(), r, &mut out) {
+            None => State::Verify { candidate, config },
+            so_far => State::VerifySettle {
+                candidate,
+                config,
+                so_far,
+            },
+        },
         (State::Verify { candidate, config }, Input::Measured(r)) => {
             verified(&mut run, env, &defs, candidate, config, &r, &mut out)
         }
@@ -569,6 +615,41 @@ pub fn step(mut run: Run, input: Input, env: &Env<'_>) -> (Run, Vec<Output>) {
         (s, _) => s,
     };
     (run, out)
+}
+
+/// One more settle measurement: `None` when the settle is over (with an
+/// event when it took longer than `settleSeconds`), else all it measured so far.
+fn settled(
+    env: &Env<'_>,
+    defs: &[MetricDef],
+    so_far: Option<&MeasureReport>,
+    r: MeasureReport,
+    out: &mut Vec<Output>,
+) -> Option<MeasureReport> {
+    let all = match so_far {
+        Some(p) => measure::concat(p, &r),
+        None => r,
+    };
+    let min = env.spec.tuning.settle_seconds;
+    if !settle::done(defs, min, &all) {
+        return Some(all);
+    }
+    let waited = all.duration_ms as f64 / 1000.0;
+    if waited > min + 0.5 {
+        let still = settle::moving(defs, &all);
+        out.push(normal(
+            "SettledLate",
+            format!(
+                "the config settled after {waited:.0} s, not {min:.0} s: core metrics recovered from the previous config{}",
+                if still.is_empty() {
+                    String::new()
+                } else {
+                    format!(" (still moving at the limit: {})", still.join(", "))
+                }
+            ),
+        ));
+    }
+    None
 }
 
 fn baseline_done(

@@ -304,6 +304,7 @@ fn transition_table() {
             State::TrialSettle {
                 x: vec![],
                 config: cfg(),
+                so_far: None,
             },
             Input::Slept,
             false,
@@ -812,6 +813,57 @@ fn a_backed_off_config_that_holds_is_monitored_learned_and_shown() {
 }
 
 #[test]
+fn a_long_settle_is_measured_and_extended_while_a_core_metric_recovers() {
+    let (st, sp) = (stack(), spec(3.0, 5));
+    let env = env(&st, &sp);
+    let (run, _) = step(
+        with(State::TrialApply {
+            x: vec![],
+            config: cfg(),
+        }),
+        Input::Applied,
+        &env,
+    );
+    assert_eq!(name(&run.state), "TrialSettle");
+    let Effect::Measure(first) = effect(&run, &env) else {
+        panic!("an adaptive settle measures")
+    };
+    assert_eq!(first.duration_ms, 3000, "the spec's settle first");
+    // /cmd_vel climbs back while the detector drains: one more second.
+    let (run, out) = step(run, report(&[12.0, 20.0, 30.0], 5.0), &env);
+    assert!(out.is_empty());
+    assert_eq!(name(&run.state), "TrialSettle");
+    let Effect::Measure(more) = effect(&run, &env) else {
+        panic!()
+    };
+    assert_eq!(more.duration_ms, 1000);
+    let (run, _) = step(run, report(&[38.0], 5.0), &env);
+    assert_eq!(name(&run.state), "TrialSettle", "30 then 38: still moving");
+    let (run, out) = step(run, report(&[37.0], 5.0), &env);
+    assert_eq!(
+        run.state,
+        State::TrialProfile {
+            x: vec![],
+            config: cfg(),
+            partial: None
+        }
+    );
+    assert_eq!(reasons(&out), vec!["SettledLate"]);
+    // Verification settles the same way.
+    let (run, _) = step(
+        with(State::VerifyApply {
+            candidate: Candidate::Baseline,
+            config: cfg(),
+        }),
+        Input::Applied,
+        &env,
+    );
+    let (run, out) = step(run, report(&[38.0, 38.0, 37.0], 5.0), &env);
+    assert_eq!(name(&run.state), "Verify", "steady at once: no extension");
+    assert!(out.is_empty());
+}
+
+#[test]
 fn effects_and_resume_points() {
     let (st, sp) = (stack(), spec(1.0, 5));
     let env = env(&st, &sp);
@@ -824,7 +876,8 @@ fn effects_and_resume_points() {
         effect(
             &with(State::TrialSettle {
                 x: vec![],
-                config: cfg()
+                config: cfg(),
+                so_far: None,
             }),
             &env
         ),
@@ -874,6 +927,7 @@ fn effects_and_resume_points() {
     let settling = with(State::VerifySettle {
         candidate: Candidate::Baseline,
         config: cfg(),
+        so_far: None,
     });
     assert_eq!(
         effect(&settling, &env),
