@@ -255,6 +255,40 @@ async fn violating_default_reaches_satisfied_with_99_percent_in_steady_state() {
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_context_change_during_trials_starts_the_run_over_for_the_new_context() {
+    let f = Fixture::new(spec(35.0, 15, json!({})));
+    let h = f.spawn();
+    f.until("a trial of the first context", |r| {
+        r.trials.len() >= 2 && r.phase() == "Tuning"
+    })
+    .await;
+    f.sim.stop_app("det").await.unwrap();
+    f.until("monitoring the nav-only context", |r| {
+        monitoring(r, 3) && r.context.as_ref().is_some_and(|c| c.apps == ["nav"])
+    })
+    .await;
+    h.abort();
+    let events = f.events();
+    let restart = events
+        .iter()
+        .position(|(r, m)| r == "ContextChanged" && m.contains("starts over"))
+        .unwrap_or_else(|| panic!("{events:#?}"));
+    let trials_before = events[..restart]
+        .iter()
+        .filter(|(r, _)| r == "Trial")
+        .count();
+    assert!(
+        (2..15).contains(&trials_before),
+        "the run stopped its trials at the change, before its budget of 15: {events:#?}"
+    );
+    assert!(
+        !events[..restart].iter().any(|(r, _)| r == "Satisfied"),
+        "no config of the old context was verified: {events:#?}"
+    );
+    assert!(f.run().trials.is_empty(), "nothing to tune without det");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn impossible_spec_ends_unsat_naming_constraint_and_best_value() {
     // The planner's loop runs at 40 Hz: 45 Hz is impossible.
     let f = Fixture::new(spec(45.0, 6, json!({})));

@@ -241,7 +241,9 @@ pub struct Tuning {
     /// Profiling window of one trial, in seconds.
     #[serde(default = "default_trial_seconds")]
     pub trial_seconds: f64,
-    /// Time to let a new config settle before profiling, in seconds.
+    /// Time to let a new config settle before profiling, in seconds. From 2 s
+    /// up it is the least wait: the settle goes on while a core metric still
+    /// moves (the previous config's transients), up to three times this.
     #[serde(default = "default_settle_seconds")]
     pub settle_seconds: f64,
     #[serde(default = "default_max_trials")]

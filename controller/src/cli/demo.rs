@@ -286,7 +286,7 @@ pub async fn wait_for_outcome(
 ) -> anyhow::Result<Value> {
     let path = crate::client::path(Kind::PerformanceSpec, Some("default"), Some(name));
     let deadline = Instant::now() + timeout;
-    let mut shown = 0usize;
+    let (mut shown, mut rejected) = (0usize, 0usize);
     loop {
         let obj = robot.client.get(&path).await?;
         let st = obj["status"].clone();
@@ -295,8 +295,25 @@ pub async fn wait_for_outcome(
             print_trial(&st, t);
         }
         shown = trials.len();
+        let gone = st["rejectedTrials"].as_array().cloned().unwrap_or_default();
+        for i in gone.iter().skip(rejected).filter_map(Value::as_u64) {
+            println!(
+                "    trial {} failed verification (a longer window after a settle); looking for a config with margin",
+                i + 1
+            );
+        }
+        rejected = gone.len();
         let phase = st["phase"].as_str().unwrap_or("");
         if settled(&st) {
+            if let (Some(i), Some(f)) = (st["bestTrial"].as_u64(), st["bestTrialBackoff"].as_f64())
+            {
+                println!(
+                    "    trial {} holds with its non-core knobs backed off to {:.0} %: {}",
+                    i + 1,
+                    f * 100.0,
+                    crate::tuning::view::config_text(&st["bestConfig"])
+                );
+            }
             return Ok(st);
         }
         anyhow::ensure!(

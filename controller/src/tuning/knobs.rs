@@ -201,6 +201,32 @@ impl KnobSpace {
             .collect()
     }
 
+    /// The point `x` with every knob that only restricts a non-core app moved
+    /// to `fraction` of the way from its minimum to its value in `x`; other
+    /// knobs keep their value. Lowering such knobs cannot hurt a core service
+    /// (see [`KnobDef::restricts_non_core`]), so this is `x` with a margin from
+    /// the core constraints' edge. `None` when nothing would change.
+    pub fn backed_off(&self, x: &[f64], fraction: f64) -> Option<Vec<f64>> {
+        if self.knobs.len() != x.len() {
+            return None;
+        }
+        let f = fraction.clamp(0.0, 1.0);
+        let y: Vec<f64> = self
+            .knobs
+            .iter()
+            .zip(x)
+            .map(|(k, &v)| {
+                if k.restricts_non_core {
+                    let v = v.clamp(k.min, k.max);
+                    k.min + f * (v - k.min)
+                } else {
+                    v
+                }
+            })
+            .collect();
+        (self.to_config(&y) != self.to_config(x)).then_some(y)
+    }
+
     /// The knob list as status shows it.
     pub fn status(&self) -> Vec<KnobStatus> {
         self.knobs
@@ -427,5 +453,23 @@ mod tests {
             vec![1.5, 2.0, 1.5, 30.0, 40.0]
         );
         assert_eq!(s.optimizer_space().unwrap().dim(), 5);
+    }
+    #[test]
+    fn backing_off_lowers_only_knobs_that_restrict_non_core_apps() {
+        let mut sp = spec();
+        sp.knobs.cpu.fix_core_nodes = false;
+        let all = ["/lidar", "/planner", "/camera", "/detector", "/web"];
+        let s = derive(&stack(), &sp, &graph(&all), &rates(), 2.0).unwrap();
+        // cpu: lidar, planner (core), camera, detector, web; rates: detector, web.
+        let x = vec![1.0, 1.0, 0.05, 1.05, 2.0, 10.5, 0.5];
+        let y = s.backed_off(&x, 0.5).unwrap();
+        let want = [1.0, 1.0, 0.05, 0.55, 1.025, 5.5, 0.5];
+        for (got, want) in y.iter().zip(want) {
+            assert!((got - want).abs() < 1e-9, "{y:?}");
+        }
+        // Everything non-core already at its minimum: nothing to back off.
+        let floor = vec![1.0, 1.0, 0.05, 0.05, 0.05, 0.5, 0.5];
+        assert_eq!(s.backed_off(&floor, 0.5), None);
+        assert_eq!(s.backed_off(&x, 1.0), None);
     }
 }

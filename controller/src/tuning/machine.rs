@@ -25,11 +25,17 @@ use super::library;
 use super::measure::{self, Evaluation, MetricDef};
 use super::monitor::{ConstraintMonitor, Trigger};
 use super::outcome::{list_or_none, observation, problem, remediate, unsat_reason, verified};
+use super::settle::{self, Wait};
 
 /// Satisfaction a verified config must reach.
 pub const SATISFIED: f64 = 0.99;
 /// First part of a trial window, after which a clearly infeasible trial stops.
 const EARLY_STOP_MS: u64 = 2000;
+/// When the best trial fails verification, its non-core knobs are moved this
+/// fraction of the way toward their minimum per step ...
+pub const BACKOFF_STEP: f64 = 0.8;
+/// ... while the fraction kept stays at least this (three steps: 80, 64, 51 %).
+pub const BACKOFF_MIN: f64 = 0.5;
 
 /// What the run knows that does not change within a step.
 #[derive(Debug, Clone)]
@@ -73,6 +79,10 @@ impl Env<'_> {
 pub enum Candidate {
     /// A trial of this run (index into `Run::trials`).
     Trial { index: usize },
+    /// The trial `index`, which failed verification, with every knob that only
+    /// restricts a non-core app at `fraction` of the way from its minimum to
+    /// the trial's value (see [`KnobSpace::backed_off`]).
+    Backoff { index: usize, fraction: f64 },
     /// The baseline config (already good, or no knobs to tune).
     Baseline,
     /// A config from the library for this context.
@@ -97,9 +107,12 @@ pub enum State {
         x: Vec<f64>,
         config: ResourceConfig,
     },
+    /// Wait for the previous config's transients to pass (see [`settle`]).
     TrialSettle {
         x: Vec<f64>,
         config: ResourceConfig,
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        so_far: Option<MeasureReport>,
     },
     TrialProfile {
         x: Vec<f64>,
@@ -109,6 +122,14 @@ pub enum State {
     VerifyApply {
         candidate: Candidate,
         config: ResourceConfig,
+    },
+    /// Let the previous config's transients pass (a backlog of a non-core node,
+    /// queues) before verifying: a verification measures the candidate alone.
+    VerifySettle {
+        candidate: Candidate,
+        config: ResourceConfig,
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        so_far: Option<MeasureReport>,
     },
     Verify {
         candidate: Candidate,
@@ -174,6 +195,9 @@ pub struct Run {
     /// The config this run last applied (what a baseline measures).
     #[serde(default)]
     pub current: ResourceConfig,
+    /// The measurement of the config being monitored, from its verification.
+    #[serde(default)]
+    pub verified: Option<Evaluation>,
 }
 
 impl Run {
@@ -212,6 +236,7 @@ impl Run {
             reason: None,
             library_hits: 0,
             current: ResourceConfig::default(),
+            verified: None,
         }
     }
 
@@ -219,10 +244,13 @@ impl Run {
     /// starts again from applying its config (nothing finished is repeated).
     pub fn resumed(mut self) -> Run {
         self.state = match self.state {
-            State::TrialSettle { x, config } | State::TrialProfile { x, config, .. } => {
+            State::TrialSettle { x, config, .. } | State::TrialProfile { x, config, .. } => {
                 State::TrialApply { x, config }
             }
-            State::Verify { candidate, config } => State::VerifyApply { candidate, config },
+            State::VerifySettle {
+                candidate, config, ..
+            }
+            | State::Verify { candidate, config } => State::VerifyApply { candidate, config },
             s => s,
         };
         self
@@ -235,7 +263,9 @@ impl Run {
             State::TrialApply { .. } | State::TrialSettle { .. } | State::TrialProfile { .. } => {
                 "Tuning"
             }
-            State::VerifyApply { .. } | State::Verify { .. } => "Satisfied",
+            State::VerifyApply { .. } | State::VerifySettle { .. } | State::Verify { .. } => {
+                "Satisfied"
+            }
             State::UnsatApply { .. }
             | State::Monitor {
                 satisfied: false, ..
@@ -320,8 +350,11 @@ pub fn effect(run: &Run, env: &Env<'_>) -> Effect {
             Effect::Apply(config.clone())
         }
         State::UnsatApply { config } => Effect::Apply(config.clone()),
-        State::TrialSettle { .. } => {
-            Effect::Sleep(Duration::from_secs_f64(env.spec.tuning.settle_seconds))
+        State::TrialSettle { so_far, .. } | State::VerifySettle { so_far, .. } => {
+            match settle::next(env.spec.tuning.settle_seconds, so_far.as_ref()) {
+                Wait::Sleep(d) => Effect::Sleep(d),
+                Wait::Measure { ms } => probe(ms),
+            }
         }
         State::TrialProfile { partial, .. } => {
             let total = env.trial_ms();
@@ -369,6 +402,26 @@ pub fn step(mut run: Run, input: Input, env: &Env<'_>) -> (Run, Vec<Output>) {
             State::Observe {
                 trigger: t,
                 skip_library: skip,
+            }
+        }
+        // The graph changed under a trial or a verification: its measurements
+        // are for another context, so the run starts over for the new one.
+        (
+            State::TrialApply { .. }
+            | State::TrialSettle { .. }
+            | State::TrialProfile { .. }
+            | State::VerifyApply { .. }
+            | State::VerifySettle { .. }
+            | State::Verify { .. },
+            Input::Trigger(t @ Trigger::ContextChanged { .. }),
+        ) => {
+            out.push(warning(
+                t.reason(),
+                format!("{}; the run starts over for the new context", t.message()),
+            ));
+            State::Observe {
+                trigger: t,
+                skip_library: false,
             }
         }
         (
@@ -422,7 +475,11 @@ pub fn step(mut run: Run, input: Input, env: &Env<'_>) -> (Run, Vec<Output>) {
         }
         (State::TrialApply { x, config }, Input::Applied) => {
             if env.spec.tuning.settle_seconds > 0.0 {
-                State::TrialSettle { x, config }
+                State::TrialSettle {
+                    x,
+                    config,
+                    so_far: None,
+                }
             } else {
                 State::TrialProfile {
                     x,
@@ -431,11 +488,21 @@ pub fn step(mut run: Run, input: Input, env: &Env<'_>) -> (Run, Vec<Output>) {
                 }
             }
         }
-        (State::TrialSettle { x, config }, Input::Slept) => State::TrialProfile {
+        (State::TrialSettle { x, config, .. }, Input::Slept) => State::TrialProfile {
             x,
             config,
             partial: None,
         },
+        (State::TrialSettle { x, config, so_far }, Input::Measured(r)) => {
+            match settled(env, &defs, so_far.as_ref(), r, &mut out) {
+                None => State::TrialProfile {
+                    x,
+                    config,
+                    partial: None,
+                },
+                so_far => State::TrialSettle { x, config, so_far },
+            }
+        }
         (State::TrialProfile { x, config, partial }, Input::Measured(r)) => {
             let report = match &partial {
                 Some(p) => measure::concat(p, &r),
@@ -457,8 +524,37 @@ pub fn step(mut run: Run, input: Input, env: &Env<'_>) -> (Run, Vec<Output>) {
             }
         }
         (State::VerifyApply { candidate, config }, Input::Applied) => {
-            State::Verify { candidate, config }
+            if env.spec.tuning.settle_seconds > 0.0 {
+                State::VerifySettle {
+                    candidate,
+                    config,
+                    so_far: None,
+                }
+            } else {
+                State::Verify { candidate, config }
+            }
         }
+        (
+            State::VerifySettle {
+                candidate, config, ..
+            },
+            Input::Slept,
+        ) => State::Verify { candidate, config },
+        (
+            State::VerifySettle {
+                candidate,
+                config,
+                so_far,
+            },
+            Input::Measured(r),
+        ) => match settled(env, &defs, so_far.as_ref(), r, &mut out) {
+            None => State::Verify { candidate, config },
+            so_far => State::VerifySettle {
+                candidate,
+                config,
+                so_far,
+            },
+        },
         (State::Verify { candidate, config }, Input::Measured(r)) => {
             verified(&mut run, env, &defs, candidate, config, &r, &mut out)
         }
@@ -519,6 +615,41 @@ pub fn step(mut run: Run, input: Input, env: &Env<'_>) -> (Run, Vec<Output>) {
         (s, _) => s,
     };
     (run, out)
+}
+
+/// One more settle measurement: `None` when the settle is over (with an
+/// event when it took longer than `settleSeconds`), else all it measured so far.
+fn settled(
+    env: &Env<'_>,
+    defs: &[MetricDef],
+    so_far: Option<&MeasureReport>,
+    r: MeasureReport,
+    out: &mut Vec<Output>,
+) -> Option<MeasureReport> {
+    let all = match so_far {
+        Some(p) => measure::concat(p, &r),
+        None => r,
+    };
+    let min = env.spec.tuning.settle_seconds;
+    if !settle::done(defs, min, &all) {
+        return Some(all);
+    }
+    let waited = all.duration_ms as f64 / 1000.0;
+    if waited > min + 0.5 {
+        let still = settle::moving(defs, &all);
+        out.push(normal(
+            "SettledLate",
+            format!(
+                "the config settled after {waited:.0} s, not {min:.0} s: core metrics recovered from the previous config{}",
+                if still.is_empty() {
+                    String::new()
+                } else {
+                    format!(" (still moving at the limit: {})", still.join(", "))
+                }
+            ),
+        ));
+    }
+    None
 }
 
 fn baseline_done(

@@ -119,6 +119,7 @@ fn name(s: &State) -> &'static str {
         State::TrialSettle { .. } => "TrialSettle",
         State::TrialProfile { .. } => "TrialProfile",
         State::VerifyApply { .. } => "VerifyApply",
+        State::VerifySettle { .. } => "VerifySettle",
         State::Verify { .. } => "Verify",
         State::UnsatApply { .. } => "UnsatApply",
         State::Monitor { .. } => "Monitor",
@@ -303,6 +304,7 @@ fn transition_table() {
             State::TrialSettle {
                 x: vec![],
                 config: cfg(),
+                so_far: None,
             },
             Input::Slept,
             false,
@@ -448,6 +450,47 @@ fn transition_table() {
             true,
             "Observe",
             vec!["ContextChanged"],
+        ),
+        (
+            "context change during a trial: start over",
+            trial(None),
+            Input::Trigger(Trigger::ContextChanged {
+                from: "a".into(),
+                to: "b".into(),
+                by: "graph check".into(),
+            }),
+            false,
+            true,
+            "Observe",
+            vec!["ContextChanged"],
+        ),
+        (
+            "context change during a verification: start over",
+            State::Verify {
+                candidate: Candidate::Trial { index: 0 },
+                config: cfg(),
+            },
+            Input::Trigger(Trigger::ContextChanged {
+                from: "a".into(),
+                to: "b".into(),
+                by: "graph check".into(),
+            }),
+            false,
+            true,
+            "Observe",
+            vec!["ContextChanged"],
+        ),
+        (
+            "a violation during a trial is the trial's own result, not a trigger",
+            trial(None),
+            Input::Trigger(Trigger::ConstraintViolated {
+                seconds: 5.0,
+                satisfaction: 0.0,
+            }),
+            false,
+            true,
+            "TrialProfile",
+            vec![],
         ),
         (
             "apps stopped: lift limits",
@@ -634,6 +677,192 @@ fn best_failing_verification_tries_the_next_best_then_unsat() {
     assert_eq!(name(&run.state), "UnsatApply");
 }
 
+/// A run whose knobs are /detector's CPU (non-core, 0.1..2) and /planner's
+/// (core), with trials 0 and 1 feasible (objective 0.8 and 0.9 of `det`).
+fn with_two_trials(env: &Env<'_>) -> Run {
+    let knob = |node: &str, restricts_non_core| knobs::KnobDef {
+        name: knobs::cpu_knob_name(node),
+        target: knobs::KnobTarget::Cpu { node: node.into() },
+        min: 0.1,
+        max: 2.0,
+        restricts_non_core,
+    };
+    let mut run = with(State::Observe {
+        trigger: Trigger::SpecChanged,
+        skip_library: false,
+    });
+    run.knobs = KnobSpace {
+        knobs: vec![knob("/detector", true), knob("/planner", false)],
+        period_micros: 20_000,
+    };
+    for (x, det) in [([1.0, 1.5], 8.0), ([1.9, 1.5], 9.0)] {
+        let Input::Measured(r) = report(&OK, det) else {
+            unreachable!()
+        };
+        run.trials.push(TrialRecord {
+            config: run.knobs.to_config(&x),
+            x: x.to_vec(),
+            eval: measure::evaluate(&env.defs(), &r, Default::default()),
+            censored: false,
+        });
+    }
+    run
+}
+
+/// Verify the run's current candidate: apply, settle, measure `cmd`.
+fn verify(run: Run, env: &Env<'_>, cmd: &[f64]) -> (Run, Vec<Output>) {
+    assert_eq!(name(&run.state), "VerifyApply");
+    let (run, _) = step(run, Input::Applied, env);
+    assert_eq!(name(&run.state), "VerifySettle", "settles before measuring");
+    let (run, _) = step(run, Input::Slept, env);
+    assert_eq!(name(&run.state), "Verify");
+    step(run, report(cmd, 9.0), env)
+}
+
+#[test]
+fn a_best_trial_failing_verification_is_backed_off_before_the_next_best() {
+    let (st, sp) = (stack(), spec(1.0, 5));
+    let env = env(&st, &sp);
+    let mut run = with_two_trials(&env);
+    let mut out = Vec::new();
+    run.state = finish(&mut run, &env, &env.defs(), &mut out);
+    assert_eq!(
+        run.state,
+        State::VerifyApply {
+            candidate: Candidate::Trial { index: 1 },
+            config: run.trials[1].config.clone()
+        }
+    );
+    // Three back-off steps of /detector's CPU, /planner's kept: 0.1 + f × 1.8.
+    let mut fractions = Vec::new();
+    for _ in 0..3 {
+        let (r, out) = verify(run, &env, &BAD);
+        run = r;
+        assert_eq!(reasons(&out), vec!["VerificationFailed", "BackingOff"]);
+        let State::VerifyApply {
+            candidate: Candidate::Backoff { index: 1, fraction },
+            config,
+        } = &run.state
+        else {
+            panic!("{:?}", run.state)
+        };
+        let want = 0.1 + fraction * 1.8;
+        assert!((config.cpu["/detector"] - want).abs() < 1e-3, "{config:?}");
+        assert_eq!(config.cpu["/planner"], 1.5);
+        fractions.push(*fraction);
+    }
+    let want = [0.8, 0.64, 0.512];
+    assert!(
+        fractions
+            .iter()
+            .zip(want)
+            .all(|(f, w)| (f - w).abs() < 1e-9)
+    );
+    // The last step failed too: the next best trial, as measured, and no back-off for it.
+    let (run, out) = verify(run, &env, &BAD);
+    assert_eq!(reasons(&out), vec!["VerificationFailed"]);
+    assert_eq!(
+        run.state,
+        State::VerifyApply {
+            candidate: Candidate::Trial { index: 0 },
+            config: run.trials[0].config.clone()
+        }
+    );
+    assert_eq!(run.rejected, vec![1]);
+    let (run, out) = verify(run, &env, &BAD);
+    assert_eq!(reasons(&out), vec!["VerificationFailed", "Unsat"]);
+    assert_eq!(run.rejected, vec![1, 0]);
+}
+
+#[test]
+fn a_backed_off_config_that_holds_is_monitored_learned_and_shown() {
+    let (st, sp) = (stack(), spec(1.0, 5));
+    let env = env(&st, &sp);
+    let mut run = with_two_trials(&env);
+    let mut out = Vec::new();
+    run.state = finish(&mut run, &env, &env.defs(), &mut out);
+    let (run, _) = verify(run, &env, &BAD);
+    let State::VerifyApply { config, .. } = run.state.clone() else {
+        panic!()
+    };
+    let (run, out) = verify(run, &env, &OK);
+    assert_eq!(reasons(&out), vec!["Satisfied", "<save>"]);
+    let Some(Output::SaveProfile(p)) = out.get(1) else {
+        panic!()
+    };
+    assert_eq!(
+        p.spec.config, config,
+        "the library keeps the backed-off config"
+    );
+    assert_eq!(
+        run.state,
+        State::Monitor {
+            satisfied: true,
+            config: config.clone()
+        }
+    );
+    let status = super::super::status::status(&Default::default(), &run, &env.defs(), 5, 1, "now");
+    assert_eq!(status.best_trial, Some(1));
+    assert_eq!(status.best_trial_backoff, Some(0.8));
+    assert_eq!(status.rejected_trials, vec![1]);
+    assert_eq!(status.best_config, Some(config));
+    assert_eq!(
+        status.non_core_performance["det"], 9.0,
+        "from the verification, not the trial"
+    );
+}
+
+#[test]
+fn a_long_settle_is_measured_and_extended_while_a_core_metric_recovers() {
+    let (st, sp) = (stack(), spec(3.0, 5));
+    let env = env(&st, &sp);
+    let (run, _) = step(
+        with(State::TrialApply {
+            x: vec![],
+            config: cfg(),
+        }),
+        Input::Applied,
+        &env,
+    );
+    assert_eq!(name(&run.state), "TrialSettle");
+    let Effect::Measure(first) = effect(&run, &env) else {
+        panic!("an adaptive settle measures")
+    };
+    assert_eq!(first.duration_ms, 3000, "the spec's settle first");
+    // /cmd_vel climbs back while the detector drains: one more second.
+    let (run, out) = step(run, report(&[12.0, 20.0, 30.0], 5.0), &env);
+    assert!(out.is_empty());
+    assert_eq!(name(&run.state), "TrialSettle");
+    let Effect::Measure(more) = effect(&run, &env) else {
+        panic!()
+    };
+    assert_eq!(more.duration_ms, 1000);
+    let (run, _) = step(run, report(&[38.0], 5.0), &env);
+    assert_eq!(name(&run.state), "TrialSettle", "30 then 38: still moving");
+    let (run, out) = step(run, report(&[37.0], 5.0), &env);
+    assert_eq!(
+        run.state,
+        State::TrialProfile {
+            x: vec![],
+            config: cfg(),
+            partial: None
+        }
+    );
+    assert_eq!(reasons(&out), vec!["SettledLate"]);
+    // Verification settles the same way.
+    let (run, _) = step(
+        with(State::VerifyApply {
+            candidate: Candidate::Baseline,
+            config: cfg(),
+        }),
+        Input::Applied,
+        &env,
+    );
+    let (run, out) = step(run, report(&[38.0, 38.0, 37.0], 5.0), &env);
+    assert_eq!(name(&run.state), "Verify", "steady at once: no extension");
+    assert!(out.is_empty());
+}
+
 #[test]
 fn effects_and_resume_points() {
     let (st, sp) = (stack(), spec(1.0, 5));
@@ -647,7 +876,8 @@ fn effects_and_resume_points() {
         effect(
             &with(State::TrialSettle {
                 x: vec![],
-                config: cfg()
+                config: cfg(),
+                so_far: None,
             }),
             &env
         ),
@@ -694,6 +924,16 @@ fn effects_and_resume_points() {
     })
     .resumed();
     assert_eq!(name(&resumed.state), "VerifyApply");
+    let settling = with(State::VerifySettle {
+        candidate: Candidate::Baseline,
+        config: cfg(),
+        so_far: None,
+    });
+    assert_eq!(
+        effect(&settling, &env),
+        Effect::Sleep(Duration::from_secs(1))
+    );
+    assert_eq!(name(&settling.resumed().state), "VerifyApply");
     let json = serde_json::to_string(&with(trial(None))).unwrap();
     let back: Run = serde_json::from_str(&json).unwrap();
     assert_eq!(back.state, trial(None));

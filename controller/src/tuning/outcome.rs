@@ -11,7 +11,8 @@ use configbot_optimizer::Observation;
 use super::knobs::KnobSpace;
 use super::library;
 use super::machine::{
-    Candidate, Env, Output, Run, SATISFIED, State, TrialRecord, finish, normal, warning,
+    BACKOFF_MIN, BACKOFF_STEP, Candidate, Env, Output, Run, SATISFIED, State, TrialRecord, finish,
+    normal, warning,
 };
 use super::measure::{self, MetricDef};
 use super::monitor::{ConstraintMonitor, Trigger};
@@ -158,6 +159,44 @@ pub fn unsat_reason(run: &Run, defs: &[MetricDef]) -> (ResourceConfig, String) {
     (config, msg)
 }
 
+/// After the best trial (`index`) failed verification at `fraction` (1 =
+/// as measured): verify it again with its non-core knobs one step lower, for a
+/// margin from the core constraint's edge (the trial's short window may have
+/// caught a lucky moment, or a config whose non-core node only keeps up from
+/// an empty backlog). Only the first rejected trial backs off, at most to
+/// [`BACKOFF_MIN`]; then the next best trial is verified as measured.
+fn back_off(
+    run: &mut Run,
+    env: &Env<'_>,
+    defs: &[MetricDef],
+    index: usize,
+    fraction: f64,
+    out: &mut Vec<Output>,
+) -> State {
+    let next = fraction * BACKOFF_STEP;
+    let first = run.rejected.first() == Some(&index);
+    let point = run.trials.get(index).map(|t| t.x.clone());
+    if let (true, true, Some(x)) = (first, next >= BACKOFF_MIN, point)
+        && let Some(y) = run.knobs.backed_off(&x, next)
+    {
+        out.push(normal(
+            "BackingOff",
+            format!(
+                "verifying trial {index} with its non-core knobs at {:.0} % of the way from their minimum, for a margin from the core constraints",
+                next * 100.0
+            ),
+        ));
+        return State::VerifyApply {
+            candidate: Candidate::Backoff {
+                index,
+                fraction: next,
+            },
+            config: run.knobs.to_config(&y),
+        };
+    }
+    finish(run, env, defs, out)
+}
+
 pub fn list_or_none(apps: &[String]) -> String {
     if apps.is_empty() {
         "no apps".into()
@@ -209,6 +248,8 @@ pub fn verified(
                 "config from {} holds: satisfaction {:.1} %, objective {}",
                 match &candidate {
                     Candidate::Trial { index } => format!("trial {index}"),
+                    Candidate::Backoff { index, fraction } =>
+                        format!("trial {index} backed off to {:.0} %", fraction * 100.0),
                     Candidate::Baseline => "the baseline".into(),
                     Candidate::Library { profile } =>
                         format!("library profile {}", profile.metadata.name),
@@ -218,7 +259,11 @@ pub fn verified(
                     .map_or("-".to_string(), |o| format!("{o:.3}"))
             ),
         ));
-        if let (Candidate::Trial { .. }, Some(ctx)) = (&candidate, &run.context) {
+        let learned = matches!(
+            candidate,
+            Candidate::Trial { .. } | Candidate::Backoff { .. }
+        );
+        if let (true, Some(ctx)) = (learned, &run.context) {
             out.push(Output::SaveProfile(Box::new(library::profile(
                 env.namespace,
                 env.spec_name,
@@ -234,6 +279,7 @@ pub fn verified(
             run.reason = None;
         }
         run.applied = Some(candidate);
+        run.verified = Some(eval);
         run.monitor = ConstraintMonitor::default();
         return State::Monitor {
             satisfied: true,
@@ -245,12 +291,23 @@ pub fn verified(
             out.push(warning(
                 "VerificationFailed",
                 format!(
-                    "trial {index} held in only {:.1} % of the windows; trying the next best",
+                    "trial {index} held in only {:.1} % of the windows",
                     sat * 100.0
                 ),
             ));
             run.rejected.push(index);
-            finish(run, env, defs, out)
+            back_off(run, env, defs, index, 1.0, out)
+        }
+        Candidate::Backoff { index, fraction } => {
+            out.push(warning(
+                "VerificationFailed",
+                format!(
+                    "trial {index} backed off to {:.0} % held in only {:.1} % of the windows",
+                    fraction * 100.0,
+                    sat * 100.0
+                ),
+            ));
+            back_off(run, env, defs, index, fraction, out)
         }
         Candidate::Baseline => {
             if env.tuning_allowed {

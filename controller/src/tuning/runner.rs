@@ -379,7 +379,17 @@ impl Runner {
             }
             Effect::Measure(req) => {
                 if !matches!(run.state, State::Monitor { .. }) {
-                    return Ok(Input::Measured(robot.measure(&req).await?));
+                    let m = robot.measure(&req).await?;
+                    // Trials and verifications are for one graph: a node that
+                    // came or went meanwhile voids them (checked after each one).
+                    if matches!(run.state, State::TrialProfile { .. } | State::Verify { .. })
+                        && let Some(t) = self
+                            .context_trigger(run, stack, labels, "graph check after a measurement")
+                            .await?
+                    {
+                        return Ok(Input::Trigger(t));
+                    }
+                    return Ok(Input::Measured(m));
                 }
                 // Monitoring: the periodic graph check, then measure while watching events.
                 if self.ctx.clock.now_ms() >= self.next_graph_check_ms

@@ -61,9 +61,12 @@ pub fn status(
         State::Monitor { config, .. } => Some(config.clone()),
         _ => None,
     };
-    s.best_trial = match (&run.applied, &monitored) {
-        (Some(Candidate::Trial { index }), Some(_)) => Some(*index as u32),
-        _ => None,
+    (s.best_trial, s.best_trial_backoff) = match (&run.applied, &monitored) {
+        (Some(Candidate::Trial { index }), Some(_)) => (Some(*index as u32), None),
+        (Some(Candidate::Backoff { index, fraction }), Some(_)) => {
+            (Some(*index as u32), Some(*fraction))
+        }
+        _ => (None, None),
     };
     s.rejected_trials = run.rejected.iter().map(|&i| i as u32).collect();
     if let Some(cfg) = &monitored {
@@ -78,15 +81,16 @@ pub fn status(
             .or(latest.map(|t| t.eval.satisfaction)),
         _ => latest.map(|t| t.eval.satisfaction),
     };
-    let source = match (&run.applied, &monitored) {
-        (Some(Candidate::Trial { index }), Some(_)) => run.trials.get(*index),
-        _ => latest,
+    // Non-core performance: the monitored config's verification, else the latest measurement.
+    let source = match (&run.verified, &monitored) {
+        (Some(v), Some(_)) => Some(v),
+        _ => latest.map(|t| &t.eval),
     };
     s.non_core_performance = source
-        .map(|t| {
+        .map(|e| {
             defs.iter()
                 .filter(|d| !d.core)
-                .filter_map(|d| t.eval.means.get(&d.name).map(|v| (d.name.clone(), *v)))
+                .filter_map(|d| e.means.get(&d.name).map(|v| (d.name.clone(), *v)))
                 .collect()
         })
         .unwrap_or_default();
@@ -124,6 +128,13 @@ fn conditions(run: &Run) -> (Cond, Cond) {
                 Some(Candidate::Trial { index }) => (
                     reasons::SATISFIED,
                     format!("applied the best trial ({index})"),
+                ),
+                Some(Candidate::Backoff { index, fraction }) => (
+                    reasons::SATISFIED,
+                    format!(
+                        "applied the best trial ({index}) with its non-core knobs backed off to {:.0} %",
+                        fraction * 100.0
+                    ),
                 ),
                 _ => (reasons::SATISFIED, "the current config holds".to_string()),
             };

@@ -93,13 +93,21 @@ pub fn trials_view(obj: &Value) -> String {
     headers.extend(metrics.iter().map(|m| m.to_uppercase()));
     headers.push("CONFIG".into());
     let best = st["bestTrial"].as_u64();
+    let rejected: Vec<u64> = st["rejectedTrials"]
+        .as_array()
+        .into_iter()
+        .flatten()
+        .filter_map(Value::as_u64)
+        .collect();
     let row = |label: String, t: &Value| {
+        let failed = t["index"].as_u64().is_some_and(|i| rejected.contains(&i));
         let mut r = vec![
             label,
             pct(&t["satisfaction"]),
             num(&t["objective"], 3),
             match (t["feasible"].as_bool(), t["censored"].as_bool()) {
                 (_, Some(true)) => "no (stopped early)".into(),
+                (Some(true), _) if failed => "yes, failed verification".into(),
                 (Some(true), _) => "yes".into(),
                 _ => "no".into(),
             },
@@ -121,6 +129,13 @@ pub fn trials_view(obj: &Value) -> String {
         out.push_str("no trials yet\n");
     } else {
         out.push_str(&table::render(&headers, &rows));
+    }
+    if let (Some(i), Some(f)) = (best, st["bestTrialBackoff"].as_f64()) {
+        out.push_str(&format!(
+            "applied: trial {i} with its non-core knobs backed off to {:.0} %: {}\n",
+            f * 100.0,
+            config_text(&st["bestConfig"])
+        ));
     }
     if let Some(r) = st["reason"].as_str() {
         out.push_str(&format!("reason: {r}\n"));
@@ -170,5 +185,30 @@ mod tests {
         assert_eq!(lines[6], "reason: why");
         assert_eq!(bar(0, 0, 4), "[....]");
         assert_eq!(bar(9, 4, 4), "[####]");
+    }
+    #[test]
+    fn view_marks_trials_that_failed_verification_and_a_backed_off_best() {
+        let trial = |i: u64, cpu: f64| {
+            json!({"index": i, "config": {"cpu": {"/det": cpu}}, "values": {},
+                   "satisfaction": 1.0, "objective": 0.5, "feasible": true})
+        };
+        let obj = json!({
+            "metadata": {"name": "nav"},
+            "spec": {"metrics": []},
+            "status": {"phase": "Monitoring", "trials": 2, "maxTrials": 2,
+                "trialHistory": [trial(0, 0.5), trial(1, 1.9)],
+                "rejectedTrials": [1], "bestTrial": 1, "bestTrialBackoff": 0.64,
+                "bestConfig": {"cpu": {"/det": 1.2}}}
+        });
+        let v = trials_view(&obj);
+        let rows: Vec<&str> = v.lines().filter(|l| l.starts_with(['0', '1'])).collect();
+        assert!(!rows[0].contains("failed verification"), "{v}");
+        assert!(rows[1].contains("yes, failed verification"), "{v}");
+        assert!(
+            v.contains(
+                "applied: trial 1 with its non-core knobs backed off to 64 %: /det=1.200cpu"
+            ),
+            "{v}"
+        );
     }
 }

@@ -1,0 +1,161 @@
+//! How long a trial or a verification waits after its config is applied
+//! before it measures (pure).
+//!
+//! The previous config leaves transients behind: a non-core node draining a
+//! backlog of frames it piled up under a tight CPU limit takes CPU from the
+//! core services for seconds, and a queue refills after its adaptor opens.
+//! Measuring them would charge the previous config's cost to this one. The
+//! spec's `settleSeconds` is the least wait. From [`ADAPTIVE_FROM_SECONDS`] up,
+//! the wait is itself measured in 1 s windows and goes on while a core metric
+//! still moves — its last window differs from the mean of the two before by
+//! more than [`MOVING`] of its target — up to [`MAX_FACTOR`] × `settleSeconds`.
+//! Shorter settles (tests, simulations) are plain sleeps.
+
+use std::time::Duration;
+
+use configbot_agent::measure::MeasureReport;
+
+use super::measure::MetricDef;
+
+/// Settles of at least this many seconds are adaptive.
+pub const ADAPTIVE_FROM_SECONDS: f64 = 2.0;
+/// An adaptive settle ends at the latest after this many times `settleSeconds`.
+pub const MAX_FACTOR: f64 = 3.0;
+/// A core metric still moves when its last 1 s value is further than this
+/// share of its target from the mean of the two values before it.
+pub const MOVING: f64 = 0.1;
+/// Length of one adaptive extension (one sub-window).
+pub const STEP_MS: u64 = 1000;
+
+/// What the settle does next.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Wait {
+    /// A plain wait (short settles).
+    Sleep(Duration),
+    /// Measure the metrics for this many milliseconds in 1 s windows.
+    Measure { ms: u64 },
+}
+
+/// The next wait of a settle of `settle_seconds`, given what it measured so far.
+pub fn next(settle_seconds: f64, so_far: Option<&MeasureReport>) -> Wait {
+    if settle_seconds < ADAPTIVE_FROM_SECONDS {
+        return Wait::Sleep(Duration::from_secs_f64(settle_seconds.max(0.0)));
+    }
+    match so_far {
+        None => Wait::Measure {
+            ms: (settle_seconds * 1000.0).round() as u64,
+        },
+        Some(_) => Wait::Measure { ms: STEP_MS },
+    }
+}
+
+/// Whether an adaptive settle that measured `so_far` is over: it waited its
+/// maximum, or it waited its minimum and no core metric still moves.
+pub fn done(defs: &[MetricDef], settle_seconds: f64, so_far: &MeasureReport) -> bool {
+    let waited = so_far.duration_ms as f64 / 1000.0;
+    if waited + 1e-9 >= MAX_FACTOR * settle_seconds {
+        return true;
+    }
+    waited + 1e-9 >= settle_seconds && moving(defs, so_far).is_empty()
+}
+
+/// The core metrics whose last 1 s value still moves (see the module doc).
+/// A metric with fewer than three values counts as moving.
+pub fn moving<'a>(defs: &'a [MetricDef], r: &MeasureReport) -> Vec<&'a str> {
+    defs.iter()
+        .filter(|d| d.core)
+        .filter(|d| {
+            let Some(s) = r.series.iter().find(|s| s.probe == d.probe) else {
+                return false;
+            };
+            let &[.., a, b, last] = &s.values[..] else {
+                return true;
+            };
+            (last - (a + b) / 2.0).abs() > MOVING * d.target.abs()
+        })
+        .map(|d| d.name.as_str())
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use configbot_agent::measure::{Probe, ProbeSeries};
+
+    use super::*;
+
+    fn defs() -> Vec<MetricDef> {
+        let def = |name: &str, topic: &str, core: bool, target: f64| MetricDef {
+            name: name.into(),
+            app: "a".into(),
+            probe: Probe::TopicRate {
+                topic: topic.into(),
+                subscriber: None,
+            },
+            at_least: true,
+            target,
+            core,
+            weight: 1.0,
+        };
+        vec![
+            def("cmd", "/cmd_vel", true, 35.0),
+            def("det", "/detections", false, 3.0),
+        ]
+    }
+
+    fn report(cmd: &[f64], det: &[f64]) -> MeasureReport {
+        let s = |topic: &str, v: &[f64]| ProbeSeries {
+            probe: Probe::TopicRate {
+                topic: topic.into(),
+                subscriber: None,
+            },
+            mean: 0.0,
+            values: v.to_vec(),
+        };
+        MeasureReport {
+            started_unix_ms: 0,
+            duration_ms: 1000 * cmd.len() as u64,
+            sub_window_ms: 1000,
+            series: vec![s("/cmd_vel", cmd), s("/detections", det)],
+        }
+    }
+
+    #[test]
+    fn short_settles_sleep_and_long_ones_measure_then_extend_by_a_second() {
+        assert_eq!(next(0.5, None), Wait::Sleep(Duration::from_millis(500)));
+        assert_eq!(next(4.0, None), Wait::Measure { ms: 4000 });
+        let r = report(&[38.0; 4], &[2.0; 4]);
+        assert_eq!(next(4.0, Some(&r)), Wait::Measure { ms: STEP_MS });
+    }
+
+    #[test]
+    fn a_core_metric_recovering_from_the_last_config_extends_the_settle() {
+        let d = defs();
+        // The detector drains a backlog: /cmd_vel climbs back.
+        let draining = report(&[10.0, 15.0, 25.0, 36.0], &[6.0; 4]);
+        assert_eq!(moving(&d, &draining), vec!["cmd"]);
+        assert!(!done(&d, 4.0, &draining));
+        let recovered = report(&[10.0, 15.0, 25.0, 36.0, 38.0, 37.0], &[6.0; 6]);
+        assert!(done(&d, 4.0, &recovered), "36, 38 then 37: within 3.5 Hz");
+        // Non-core metrics may move: only the core ones decide.
+        let steady = report(&[38.0, 37.0, 39.0, 38.0], &[0.0, 6.0, 0.0, 6.0]);
+        assert!(done(&d, 4.0, &steady));
+        // A config that settles into a violation is settled too.
+        let low = report(&[20.0, 21.0, 19.0, 20.0], &[3.0; 4]);
+        assert!(done(&d, 4.0, &low));
+    }
+
+    #[test]
+    fn the_settle_is_at_least_its_minimum_and_at_most_its_maximum() {
+        let d = defs();
+        let steady = report(&[38.0; 3], &[2.0; 3]);
+        assert!(!done(&d, 4.0, &steady), "3 s of a 4 s minimum");
+        let noisy: Vec<f64> = (0..12)
+            .map(|i| if i % 2 == 0 { 20.0 } else { 40.0 })
+            .collect();
+        let r = report(&noisy[..11], &[2.0; 11]);
+        assert!(!done(&d, 4.0, &r), "still moving at 11 s");
+        let r = report(&noisy, &[2.0; 12]);
+        assert!(done(&d, 4.0, &r), "12 s = 3 × 4 s is the most");
+        assert!(moving(&d, &report(&[38.0, 38.0], &[1.0; 2])) == vec!["cmd"]);
+    }
+}
