@@ -411,7 +411,8 @@ fn write_plots(
         .as_array()
         .cloned()
         .unwrap_or_default();
-    let progress = progress_chart(&trials);
+    let progress =
+        crate::report::progress::chart(&trials, &crate::report::progress::rejected(status));
     let p = out.join("progress.svg");
     std::fs::write(&p, progress.to_svg())?;
     paths.push(p.display().to_string());
@@ -422,54 +423,6 @@ fn write_plots(
         paths.push(p.display().to_string());
     }
     Ok(paths)
-}
-
-/// Optimisation progress as in the paper's Fig. 5 (pure).
-pub fn progress_chart(trials: &[Value]) -> Chart {
-    let mut feasible = Vec::new();
-    let mut infeasible = Vec::new();
-    let mut best = Vec::new();
-    let mut best_so_far: Option<f64> = None;
-    for t in trials {
-        let i = t["index"].as_f64().unwrap_or(0.0) + 1.0;
-        let o = t["objective"].as_f64().unwrap_or(0.0);
-        if t["feasible"].as_bool() == Some(true) {
-            feasible.push((i, o));
-            best_so_far = Some(best_so_far.map_or(o, |b: f64| b.max(o)));
-        } else {
-            infeasible.push((i, o));
-        }
-        if let Some(b) = best_so_far {
-            best.push((i, b));
-        }
-    }
-    Chart {
-        title: "Tuning progress".into(),
-        x_label: "trial".into(),
-        y_label: "non-core objective (1 = every target met)".into(),
-        series: vec![
-            Series {
-                name: "feasible".into(),
-                mark: Mark::Dot,
-                color: colors::FEASIBLE,
-                points: feasible,
-            },
-            Series {
-                name: "infeasible".into(),
-                mark: Mark::Cross,
-                color: colors::INFEASIBLE,
-                points: infeasible,
-            },
-            Series {
-                name: "best feasible".into(),
-                mark: Mark::Step,
-                color: colors::BEST,
-                points: best,
-            },
-        ],
-        y_from_zero: true,
-        ..Chart::default()
-    }
 }
 
 /// Histogram of the per-second core rate, default vs tuned, as in Fig. 6 (pure).
@@ -535,19 +488,5 @@ mod tests {
             }
         }
         assert!(example("nope").is_err());
-    }
-
-    #[test]
-    fn progress_marks_infeasible_trials_and_tracks_the_best() {
-        let t = |i: u32, o: f64, f: bool| json!({"index": i, "objective": o, "feasible": f});
-        let c = progress_chart(&[
-            t(0, 0.9, false),
-            t(1, 0.3, true),
-            t(2, 0.5, true),
-            t(3, 0.4, true),
-        ]);
-        assert_eq!(c.series[0].points.len(), 3);
-        assert_eq!(c.series[1].points, vec![(1.0, 0.9)]);
-        assert_eq!(c.series[2].points, vec![(2.0, 0.3), (3.0, 0.5), (4.0, 0.5)]);
     }
 }
