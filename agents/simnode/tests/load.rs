@@ -17,14 +17,6 @@ fn wait_more(p: &Proc, n: usize, what: &str) {
     wait_for(what, Duration::from_secs(30), || p.msg_count() >= base + n);
 }
 
-fn rate_over(p: &Proc, secs: f64) -> (f64, Vec<(u64, f64, usize)>) {
-    let from = Instant::now();
-    std::thread::sleep(Duration::from_secs_f64(secs));
-    let to = Instant::now();
-    let m = p.msgs_between(from, to);
-    (m.len() as f64 / (to - from).as_secs_f64(), m)
-}
-
 #[test]
 fn heavy_callback_starves_a_core_callback_sharing_one_worker() {
     if !ros_available() {

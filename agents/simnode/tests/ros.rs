@@ -5,22 +5,13 @@
 
 mod common;
 
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use common::*;
 
 /// Waits until `listener` has printed `n` messages.
 fn wait_msgs(p: &Proc, n: usize, what: &str) {
     wait_for(what, Duration::from_secs(30), || p.msg_count() >= n);
-}
-
-/// Rate (Hz) of the messages `p` printed over the next `secs` seconds.
-fn measure(p: &Proc, secs: f64) -> (f64, Vec<(u64, f64, usize)>) {
-    let from = Instant::now();
-    std::thread::sleep(Duration::from_secs_f64(secs));
-    let to = Instant::now();
-    let m = p.msgs_between(from, to);
-    (m.len() as f64 / (to - from).as_secs_f64(), m)
 }
 
 /// Parses the last "average rate: X" of `rostopic hz` output.
@@ -65,7 +56,7 @@ fn publisher_seen_by_real_tools(kind: MasterKind) {
     // A rospy listener decodes the messages: rate, sizes, sequence, latency.
     let listener = env.script("listen.py", &[&unique("listener"), &topic]);
     wait_msgs(&listener, 5, "messages at the rospy listener");
-    let (rate, msgs) = measure(&listener, 3.0);
+    let (rate, msgs) = rate_over(&listener, 3.0);
     assert!(
         (16.0..=22.0).contains(&rate),
         "rospy listener saw {rate:.1} Hz of 20"
@@ -153,7 +144,7 @@ fn rospy_feeds_a_callback(kind: MasterKind) {
     });
     let _talker = env.script("talk.py", &[&unique("talker"), &input, "20", "300"]);
     wait_msgs(&listener, 5, "callback output at the rospy listener");
-    let (rate, msgs) = measure(&listener, 3.0);
+    let (rate, msgs) = rate_over(&listener, 3.0);
     assert!(
         (16.0..=22.0).contains(&rate),
         "callback output {rate:.1} Hz of 20"
@@ -205,15 +196,15 @@ fn adaptor_inserted_live_by_the_configbot_master_limits_a_callback() {
     let _nav = env.simnode(&["--name", &nav, "--on", &on]);
     let listener = env.script("listen.py", &[&unique("listener"), &cmd]);
     wait_msgs(&listener, 10, "callback output");
-    let (direct, _) = measure(&listener, 2.0);
+    let (direct, _) = rate_over(&listener, 2.0);
     // The master points the simnode at its adaptor (publisherUpdate); the
     // simnode drops the direct connection and takes 10 of 30 Hz.
     m.set_adaptor(&scan, &nav, Some(10.0));
     std::thread::sleep(Duration::from_secs(2));
-    let (adapted, _) = measure(&listener, 3.0);
+    let (adapted, _) = rate_over(&listener, 3.0);
     m.set_adaptor(&scan, &nav, None);
     std::thread::sleep(Duration::from_secs(2));
-    let (back, _) = measure(&listener, 2.0);
+    let (back, _) = rate_over(&listener, 2.0);
     eprintln!(
         "callback output: direct {direct:.1} Hz, adapted to 10: {adapted:.1} Hz, removed: {back:.1} Hz"
     );
