@@ -26,13 +26,9 @@ fn cgroup_pids(rt: &configbot_agent::NodeRuntime, n: &str) -> Vec<u32> {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn ros_nodes_are_adopted_limited_adapted_and_measured() {
-    if !ros_available() {
+    let Some((mut env, rt)) = RtEnv::start_with_ros(Some(Preference::Auto)).await else {
         return;
-    }
-    let mut env = RtEnv::new();
-    let rt = env
-        .start(true, Some(Preference::Auto), StackSpec::default())
-        .await;
+    };
     let mut events = rt.events();
     let nav = env.rospy_core_app(
         "nav",
@@ -345,13 +341,9 @@ async fn spawned_process_is_an_exec_event_within_a_second() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn http_api_and_client_round_trip_over_the_unix_socket() {
-    if !ros_available() {
+    let Some((env, rt)) = RtEnv::start_with_ros(Some(Preference::Auto)).await else {
         return;
-    }
-    let mut env = RtEnv::new();
-    let rt = env
-        .start(true, Some(Preference::Auto), StackSpec::default())
-        .await;
+    };
     let sock = env.path("agent.sock");
     let listener = configbot_agent::api::bind_unix(&sock).unwrap();
     let server = tokio::spawn(configbot_agent::api::serve_unix(rt.clone(), listener));

@@ -153,6 +153,17 @@ impl RtEnv {
         }
     }
 
+    /// A new env and its runtime with the ROS data plane, `monitor` and an
+    /// empty stack; `None` (having said SKIPPED) when ROS is not installed.
+    pub async fn start_with_ros(monitor: Option<Preference>) -> Option<(RtEnv, NodeRuntime)> {
+        if !ros_available() {
+            return None;
+        }
+        let mut env = RtEnv::new();
+        let rt = env.start(true, monitor, StackSpec::default()).await;
+        Some((env, rt))
+    }
+
     pub async fn start(
         &mut self,
         ros: bool,
