@@ -22,6 +22,29 @@ fn hz_of(out: &str) -> Option<f64> {
         .find_map(|v| v.trim().parse().ok())
 }
 
+/// Waits until `node` is in `rosnode list`.
+fn wait_registered(env: &RosEnv, node: &str) {
+    wait_for(
+        "the simnode in rosnode list",
+        Duration::from_secs(20),
+        || env.node_list().iter().any(|n| n == node),
+    );
+}
+
+/// Sends `sig` to the simnode `sim` named `node`: it exits within 5 s and
+/// leaves `rosnode list` within 10 s.
+fn exits_and_unregisters(env: &RosEnv, sim: &mut Proc, node: &str, sig: &str) {
+    assert!(
+        sim.signal_and_wait(sig, Duration::from_secs(5)),
+        "no prompt exit"
+    );
+    wait_for(
+        "the simnode to leave rosnode list",
+        Duration::from_secs(10),
+        || !env.node_list().iter().any(|n| n == node),
+    );
+}
+
 fn publisher_seen_by_real_tools(kind: MasterKind) {
     if !ros_available() {
         return;
@@ -41,11 +64,7 @@ fn publisher_seen_by_real_tools(kind: MasterKind) {
         "--cost-ms-per-msg",
         "1",
     ]);
-    wait_for(
-        "the simnode in rosnode list",
-        Duration::from_secs(20),
-        || env.node_list().contains(&node),
-    );
+    wait_registered(env, &node);
     let info = env.try_run("rosnode", &["info", &node]).unwrap_or_default();
     assert!(
         info.contains(&topic) && info.contains("std_msgs/UInt8MultiArray"),
@@ -96,15 +115,7 @@ fn publisher_seen_by_real_tools(kind: MasterKind) {
     assert!(echo.contains("length: 1024"), "{echo}");
 
     // SIGTERM: prompt exit, unregistered.
-    assert!(
-        sim.signal_and_wait("-TERM", Duration::from_secs(5)),
-        "no prompt exit"
-    );
-    wait_for(
-        "the simnode to leave rosnode list",
-        Duration::from_secs(10),
-        || !env.node_list().contains(&node),
-    );
+    exits_and_unregisters(env, &mut sim, &node, "-TERM");
     let topics = env.try_run("rostopic", &["list", "-p"]).unwrap_or_default();
     assert!(!topics.contains(&topic), "{topics}");
 }
@@ -133,11 +144,7 @@ fn rospy_feeds_a_callback(kind: MasterKind) {
     // The simnode subscribes first, so it connects on publisherUpdate.
     let on = format!("{input}->{output}:cost-ms=3,bytes=48");
     let mut sim = env.simnode(&["--name", &node, "--on", &on]);
-    wait_for(
-        "the simnode in rosnode list",
-        Duration::from_secs(20),
-        || env.node_list().contains(&node),
-    );
+    wait_registered(env, &node);
     let listener = env.script("listen.py", &[&unique("listener"), &output]);
     wait_for("the listener", Duration::from_secs(20), || {
         listener.has_line("ready")
@@ -160,15 +167,7 @@ fn rospy_feeds_a_callback(kind: MasterKind) {
     );
     let info = env.try_run("rosnode", &["info", &node]).unwrap_or_default();
     assert!(info.contains("inbound") && info.contains(&input), "{info}");
-    assert!(
-        sim.signal_and_wait("-INT", Duration::from_secs(5)),
-        "no prompt exit"
-    );
-    wait_for(
-        "the simnode to leave rosnode list",
-        Duration::from_secs(10),
-        || !env.node_list().contains(&node),
-    );
+    exits_and_unregisters(env, &mut sim, &node, "-INT");
 }
 
 #[test]
