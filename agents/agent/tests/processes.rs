@@ -4,11 +4,11 @@
 
 mod common;
 
-use std::collections::{BTreeMap, BTreeSet};
+use std::collections::BTreeSet;
 use std::time::Duration;
 
 use common::*;
-use configbot_agent::{AgentEvent, ConfigUpdate, policy::ExitKind};
+use configbot_agent::{AgentEvent, policy::ExitKind};
 use configbot_cgroups::{CgroupBackend, CpuLimit};
 
 const T: Duration = Duration::from_secs(20);
@@ -57,16 +57,8 @@ async fn busy_node_measures_its_limit_then_about_one_cpu() {
     );
     let agent = env.start(stack).await;
     let n = node("/busy");
-    wait_until(T, "busy pid", || {
-        !agent.backend().pids(&n).unwrap().is_empty()
-    })
-    .await;
-    agent
-        .put_config(ConfigUpdate {
-            limits: BTreeMap::from([(n.clone(), CpuLimit::cpus(0.2))]),
-            adaptor_rates: Vec::new(),
-        })
-        .unwrap();
+    wait_running(&agent, &n, T, "busy pid").await;
+    set_limit(&agent, &n, CpuLimit::cpus(0.2));
     tokio::time::sleep(Duration::from_millis(300)).await;
     let limited = measure_cpus(agent.backend(), &n, Duration::from_secs(3)).await;
     eprintln!("agent busy node limited to 0.2: {limited:.3} cpus");
@@ -78,12 +70,7 @@ async fn busy_node_measures_its_limit_then_about_one_cpu() {
     let inv = agent.inventory();
     assert!(inv[0].stats.nr_throttled > 0, "{:?}", inv[0].stats);
 
-    agent
-        .put_config(ConfigUpdate {
-            limits: BTreeMap::from([(n.clone(), CpuLimit::UNLIMITED)]),
-            adaptor_rates: Vec::new(),
-        })
-        .unwrap();
+    set_limit(&agent, &n, CpuLimit::UNLIMITED);
     let free = measure_cpus(agent.backend(), &n, Duration::from_secs(3)).await;
     eprintln!("agent busy node unlimited: {free:.3} cpus");
     // ~1 CPU on an idle host; the 2 cores are shared with other developers'
@@ -200,10 +187,7 @@ async fn app_stop_is_graceful_and_start_brings_it_back() {
     let polite = node("/nav/polite");
     let stubborn = node("/nav/stubborn");
     for n in [&polite, &stubborn, &node("/other")] {
-        wait_until(T, "node running", || {
-            !agent.backend().pids(n).unwrap().is_empty()
-        })
-        .await;
+        wait_running(&agent, n, T, "node running").await;
     }
     let other_pid = agent.backend().pids(&node("/other")).unwrap();
     // Give the shell a moment to install its trap (it runs before the loop).
@@ -242,10 +226,7 @@ async fn app_stop_is_graceful_and_start_brings_it_back() {
     assert!(agent.backend().pids(&polite).unwrap().is_empty());
 
     agent.start_app("nav").unwrap();
-    wait_until(T, "nav back", || {
-        !agent.backend().pids(&polite).unwrap().is_empty()
-    })
-    .await;
+    wait_running(&agent, &polite, T, "nav back").await;
     assert!(agent.stop_app("ghost").await.is_err());
 }
 
@@ -290,16 +271,8 @@ async fn configured_shutdown_lifts_every_limit_and_keeps_processes() {
     settings.lift_limits_on_shutdown = true;
     let agent = env.start_with(stack, settings).await;
     let n = node("/n");
-    wait_until(T, "node running", || {
-        !agent.backend().pids(&n).unwrap().is_empty()
-    })
-    .await;
-    agent
-        .put_config(ConfigUpdate {
-            limits: BTreeMap::from([(n.clone(), CpuLimit::cpus(0.2))]),
-            adaptor_rates: Vec::new(),
-        })
-        .unwrap();
+    wait_running(&agent, &n, T, "node running").await;
+    set_limit(&agent, &n, CpuLimit::cpus(0.2));
     assert_eq!(agent.backend().cpu_max(&n).unwrap().quota_us, Some(20_000));
     let pids = agent.backend().pids(&n).unwrap();
     agent.shutdown().await;

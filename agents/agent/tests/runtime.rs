@@ -12,7 +12,7 @@ use configbot_manifests::{AdaptorRate, ResourceConfig};
 use configbot_procmon::{MonitorKind, Preference};
 
 use common::node;
-use common::rt::{RtEnv, eventually, robot_stack, ros_available};
+use common::rt::{RtEnv, eventually, robot_stack, ros_available, stack_yaml};
 
 const T: Duration = Duration::from_secs(40);
 
@@ -26,39 +26,23 @@ fn cgroup_pids(rt: &configbot_agent::NodeRuntime, n: &str) -> Vec<u32> {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn ros_nodes_are_adopted_limited_adapted_and_measured() {
-    if !ros_available() {
+    let Some((mut env, rt)) = RtEnv::start_with_ros(Some(Preference::Auto)).await else {
         return;
-    }
-    let mut env = RtEnv::new();
-    let rt = env
-        .start(true, Some(Preference::Auto), StackSpec::default())
-        .await;
+    };
     let mut events = rt.events();
-    let stack = robot_stack(&format!(
-        r#"
-apiVersion: configbot.dev/v1alpha1
-kind: RobotStack
-metadata: {{name: bot}}
-spec:
-  apps:
-    - name: nav
-      core: true
-      nodes:
-        - name: /talker
-          run:
-            command: /usr/bin/python3
-            args: ["{talker}", "talker", "/chatter", "30"]
-            env: {env}
-    - name: det
+    let nav = env.rospy_core_app(
+        "nav",
+        &[("/talker", "talker.py", &["talker", "/chatter", "30"])],
+    );
+    let stack = robot_stack(&stack_yaml(&format!(
+        r#"{nav}    - name: det
       nodes:
         - name: /listener
           match: {{rosNode: /listener}}
         - name: /burner
           run: {{command: /usr/bin/python3, args: ["-c", "while True: pass"]}}
-"#,
-        talker = common::rt::script("talker.py"),
-        env = env.ros_env_yaml(),
-    ));
+"#
+    )));
     rt.set_stack(&stack).await.unwrap();
     // Limit the busy node at once (keeps the shared machine free).
     let cfg = ResourceConfig {
@@ -212,19 +196,13 @@ spec:
 async fn set_stack_adds_removes_and_restarts_nodes_at_run_time() {
     let mut env = RtEnv::new();
     let one = |extra: &str| {
-        robot_stack(&format!(
-            r#"
-apiVersion: configbot.dev/v1alpha1
-kind: RobotStack
-metadata: {{name: bot}}
-spec:
-  apps:
-    - name: a
+        robot_stack(&stack_yaml(&format!(
+            r#"    - name: a
       nodes:
         - name: /one
           run: {{command: /bin/sleep, args: ["300"]}}
 {extra}"#
-        ))
+        )))
     };
     let rt = env.start(false, None, StackSpec::default()).await;
     rt.set_stack(&one("")).await.unwrap();
@@ -256,19 +234,13 @@ spec:
     })
     .await;
     // /one removed: stopped and its cgroup gone.
-    let only_two = robot_stack(
-        r#"
-apiVersion: configbot.dev/v1alpha1
-kind: RobotStack
-metadata: {name: bot}
-spec:
-  apps:
-    - name: a
+    let only_two = robot_stack(&stack_yaml(
+        r#"    - name: a
       nodes:
         - name: /two
           run: {command: /bin/sleep, args: ["302"]}
 "#,
-    );
+    ));
     rt.set_stack(&only_two).await.unwrap();
     assert!(
         !rt.agent().backend().exists(&node("/one")),
@@ -369,38 +341,19 @@ async fn spawned_process_is_an_exec_event_within_a_second() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn http_api_and_client_round_trip_over_the_unix_socket() {
-    if !ros_available() {
+    let Some((env, rt)) = RtEnv::start_with_ros(Some(Preference::Auto)).await else {
         return;
-    }
-    let mut env = RtEnv::new();
-    let rt = env
-        .start(true, Some(Preference::Auto), StackSpec::default())
-        .await;
+    };
     let sock = env.path("agent.sock");
     let listener = configbot_agent::api::bind_unix(&sock).unwrap();
     let server = tokio::spawn(configbot_agent::api::serve_unix(rt.clone(), listener));
     let client = configbot_agent::client::AgentClient::unix(&sock);
     let mut events = client.events().await.unwrap();
 
-    let stack = robot_stack(&format!(
-        r#"
-apiVersion: configbot.dev/v1alpha1
-kind: RobotStack
-metadata: {{name: bot}}
-spec:
-  apps:
-    - name: cam
-      core: true
-      nodes:
-        - name: /camera
-          run:
-            command: /usr/bin/python3
-            args: ["{talker}", "camera", "/image", "20"]
-            env: {env}
-"#,
-        talker = common::rt::script("talker.py"),
-        env = env.ros_env_yaml(),
-    ));
+    let stack = robot_stack(&stack_yaml(&env.rospy_core_app(
+        "cam",
+        &[("/camera", "talker.py", &["camera", "/image", "20"])],
+    )));
     client.set_stack(&stack).await.unwrap();
     let mut camera_pid = None;
     let end = Instant::now() + T;
@@ -514,24 +467,8 @@ async fn the_binary_runs_the_full_runtime_from_a_robot_stack_yaml() {
         return;
     }
     let mut env = RtEnv::new();
-    let yaml = format!(
-        r#"apiVersion: configbot.dev/v1alpha1
-kind: RobotStack
-metadata: {{name: bot}}
-spec:
-  apps:
-    - name: nav
-      core: true
-      nodes:
-        - name: /odom
-          run:
-            command: /usr/bin/python3
-            args: ["{talker}", "odom", "/odom", "10"]
-            env: {env}
-"#,
-        talker = common::rt::script("talker.py"),
-        env = env.ros_env_yaml(),
-    );
+    let yaml =
+        stack_yaml(&env.rospy_core_app("nav", &[("/odom", "talker.py", &["odom", "/odom", "10"])]));
     let stack = env.path("stack.yaml");
     std::fs::write(&stack, yaml).unwrap();
     let sock = env.path("agent.sock");

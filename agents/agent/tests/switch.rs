@@ -8,10 +8,9 @@ mod common;
 use std::time::{Duration, Instant};
 
 use configbot_agent::NodeRuntime;
-use configbot_agent::StackSpec;
 use configbot_agent::measure::{MeasureRequest, Probe};
 
-use common::rt::{RtEnv, eventually, robot_stack, ros_available, script};
+use common::rt::{RtEnv, eventually, robot_stack, stack_yaml};
 
 const T: Duration = Duration::from_secs(30);
 /// How long a topic may take to show messages again after a restart.
@@ -60,39 +59,19 @@ async fn restarted(rt: &NodeRuntime, name: &str, old: u32) -> u32 {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn meters_follow_nodes_restarted_by_a_stack_switch() {
-    if !ros_available() {
+    let Some((env, rt)) = RtEnv::start_with_ros(None).await else {
         return;
-    }
-    let mut env = RtEnv::new();
-    let rt = env.start(true, None, StackSpec::default()).await;
+    };
     // /src publishes /in; /nav relays /in to /out, which nobody subscribes
     // to (like /cmd_vel in the example stacks): only the meter reads it.
     let stack = |src_hz: &str, nav_tag: &str| {
-        robot_stack(&format!(
-            r#"
-apiVersion: configbot.dev/v1alpha1
-kind: RobotStack
-metadata: {{name: bot}}
-spec:
-  apps:
-    - name: nav
-      core: true
-      nodes:
-        - name: /src
-          run:
-            command: /usr/bin/python3
-            args: ["{talker}", "src", "/in", "{src_hz}"]
-            env: {env}
-        - name: /nav
-          run:
-            command: /usr/bin/python3
-            args: ["{relay}", "nav", "/in", "/out", "{nav_tag}"]
-            env: {env}
-"#,
-            talker = script("talker.py"),
-            relay = script("relay.py"),
-            env = env.ros_env_yaml(),
-        ))
+        robot_stack(&stack_yaml(&env.rospy_core_app(
+            "nav",
+            &[
+                ("/src", "talker.py", &["src", "/in", src_hz]),
+                ("/nav", "relay.py", &["nav", "/in", "/out", nav_tag]),
+            ],
+        )))
     };
     rt.set_stack(&stack("10", "a")).await.unwrap();
     eventually("/src and /nav registered", T, || {

@@ -17,14 +17,6 @@ fn wait_more(p: &Proc, n: usize, what: &str) {
     wait_for(what, Duration::from_secs(30), || p.msg_count() >= base + n);
 }
 
-fn rate_over(p: &Proc, secs: f64) -> (f64, Vec<(u64, f64, usize)>) {
-    let from = Instant::now();
-    std::thread::sleep(Duration::from_secs_f64(secs));
-    let to = Instant::now();
-    let m = p.msgs_between(from, to);
-    (m.len() as f64 / (to - from).as_secs_f64(), m)
-}
-
 #[test]
 fn heavy_callback_starves_a_core_callback_sharing_one_worker() {
     if !ros_available() {
@@ -146,55 +138,88 @@ impl Drop for Cgroup {
     }
 }
 
-#[test]
-fn thread_per_message_threads_pile_up_under_a_cpu_limit() {
+/// A thread-per-message detector (image → detections, 40 ms of CPU a frame)
+/// fed by a 10 Hz camera and watched by a rospy listener, with a 0.2 CPU
+/// cgroup for it. Fields drop in order: the processes, the master, then the
+/// cgroup they were in.
+struct LimitedDetector {
+    _camera: Proc,
+    listener: Proc,
+    detector: Proc,
+    /// The detector's threads once the listener was ready, before any frame.
+    idle_threads: usize,
+    _master: Master,
+    cg: Cgroup,
+}
+
+/// Starts a [`LimitedDetector`] with `extra` simnode flags; with
+/// `limited_from_start` the detector joins the cgroup before anything
+/// connects to it, otherwise the test moves it there (`cg.add`). `None`
+/// (having said SKIPPED) without ROS or a cgroup v1 `cpu` mount.
+fn detector_under_limit(extra: &[&str], limited_from_start: bool) -> Option<LimitedDetector> {
     if !ros_available() {
-        return;
+        return None;
     }
-    // Declared first so it is dropped after the processes in it.
     let Some(cg) = Cgroup::create(20_000) else {
         eprintln!(
             "SKIPPED: cannot create a cgroup under /sys/fs/cgroup/cpu (needs root, cgroup v1 cpu)"
         );
-        return;
+        return None;
     };
     let m = Master::start(MasterKind::Configbot);
     let env = &m.env;
     let t = |s: &str| format!("/{}", unique(s));
-    let (img, det) = (t("image"), t("detections"));
+    let (img, det, name) = (t("image"), t("detections"), t("detector"));
     let on = format!("{img}->{det}:cost-ms=40,bytes=128");
-    let detector = env.simnode(&[
-        "--name",
-        &t("detector"),
-        "--thread-per-message",
-        "--on",
-        &on,
-    ]);
+    let mut args = vec!["--name", name.as_str(), "--thread-per-message"];
+    args.extend_from_slice(extra);
+    args.extend_from_slice(&["--on", &on]);
+    let detector = env.simnode(&args);
+    if limited_from_start {
+        cg.add(detector.pid());
+    }
     let listener = env.script("listen.py", &[&unique("listener"), &det]);
     wait_for("the listener", Duration::from_secs(20), || {
         listener.has_line("ready")
     });
-    let idle = threads(detector.pid());
+    let idle_threads = threads(detector.pid());
     let spec = format!("{img}:10:1024");
-    let _camera = env.simnode(&["--name", &t("camera"), "--publish", &spec]);
+    let camera = env.simnode(&["--name", &t("camera"), "--publish", &spec]);
+    Some(LimitedDetector {
+        _camera: camera,
+        listener,
+        detector,
+        idle_threads,
+        _master: m,
+        cg,
+    })
+}
+
+#[test]
+fn thread_per_message_threads_pile_up_under_a_cpu_limit() {
+    let Some(d) = detector_under_limit(&[], false) else {
+        return;
+    };
+    let (listener, idle) = (&d.listener, d.idle_threads);
+    let pid = d.detector.pid();
 
     // Unlimited: 10 Hz × 40 ms = 0.4 CPU, each message done before the next.
-    wait_more(&listener, 5, "detections");
+    wait_more(listener, 5, "detections");
     let mut peak_free = 0;
     let from = Instant::now();
     while from.elapsed() < Duration::from_secs(2) {
-        peak_free = peak_free.max(threads(detector.pid()) - idle);
+        peak_free = peak_free.max(threads(pid) - idle);
         std::thread::sleep(Duration::from_millis(20));
     }
     let free = listener.msgs_between(from, Instant::now());
 
     // 0.2 CPU: 10 threads (the cap) share it, each message takes seconds.
-    cg.add(detector.pid());
+    d.cg.add(pid);
     std::thread::sleep(Duration::from_secs(2));
     let mut peak_limited = 0;
     let from = Instant::now();
     while from.elapsed() < Duration::from_secs(4) {
-        peak_limited = peak_limited.max(threads(detector.pid()) - idle);
+        peak_limited = peak_limited.max(threads(pid) - idle);
         std::thread::sleep(Duration::from_millis(20));
     }
     let limited = listener.msgs_between(from, Instant::now());
@@ -229,53 +254,25 @@ fn thread_per_message_threads_pile_up_under_a_cpu_limit() {
         med(&limited) > 3.0 * med(&free).max(40.0),
         "latency did not grow"
     );
-    drop(detector);
 }
 
 #[test]
 fn contention_makes_an_oversubscribed_detector_pay_more_cpu_per_frame() {
-    if !ros_available() {
-        return;
-    }
-    let Some(cg) = Cgroup::create(20_000) else {
-        eprintln!(
-            "SKIPPED: cannot create a cgroup under /sys/fs/cgroup/cpu (needs root, cgroup v1 cpu)"
-        );
+    let Some(d) = detector_under_limit(&["--contention-pct", "20"], true) else {
         return;
     };
-    let m = Master::start(MasterKind::Configbot);
-    let env = &m.env;
-    let t = |s: &str| format!("/{}", unique(s));
-    let (img, det) = (t("image"), t("detections"));
-    let on = format!("{img}->{det}:cost-ms=40,bytes=128");
-    let detector = env.simnode(&[
-        "--name",
-        &t("detector"),
-        "--thread-per-message",
-        "--contention-pct",
-        "20",
-        "--on",
-        &on,
-    ]);
-    cg.add(detector.pid());
-    let listener = env.script("listen.py", &[&unique("listener"), &det]);
-    wait_for("the listener", Duration::from_secs(20), || {
-        listener.has_line("ready")
-    });
-    let spec = format!("{img}:10:1024");
-    let _camera = env.simnode(&["--name", &t("camera"), "--publish", &spec]);
+    let (listener, pid) = (&d.listener, d.detector.pid());
     // 0.2 CPU against 10 Hz × 40 ms: ten threads pile up, so each frame
     // starts with about nine others running and costs 40 × (1 + 0.2 × 9) ms.
-    wait_more(&listener, 3, "detections");
+    wait_more(listener, 3, "detections");
     std::thread::sleep(Duration::from_secs(2));
-    let c0 = cpu_time(detector.pid());
-    let (rate, msgs) = rate_over(&listener, 6.0);
-    let c1 = cpu_time(detector.pid());
+    let c0 = cpu_time(pid);
+    let (rate, msgs) = rate_over(listener, 6.0);
+    let c1 = cpu_time(pid);
     let per_frame = (c1 - c0).as_secs_f64() * 1000.0 / msgs.len().max(1) as f64;
     eprintln!("contended detector at 0.2 CPU: {rate:.1} Hz, {per_frame:.0} ms of CPU per frame");
     assert!(msgs.len() >= 4, "only {} detections in 6 s", msgs.len());
     // Without contention: 40 ms per frame, 5 Hz.
     assert!(per_frame >= 70.0, "{per_frame:.0} ms of CPU per frame");
     assert!(rate <= 3.5, "contended detector {rate:.1} Hz");
-    drop(detector);
 }

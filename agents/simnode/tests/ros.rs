@@ -5,7 +5,7 @@
 
 mod common;
 
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use common::*;
 
@@ -14,21 +14,35 @@ fn wait_msgs(p: &Proc, n: usize, what: &str) {
     wait_for(what, Duration::from_secs(30), || p.msg_count() >= n);
 }
 
-/// Rate (Hz) of the messages `p` printed over the next `secs` seconds.
-fn measure(p: &Proc, secs: f64) -> (f64, Vec<(u64, f64, usize)>) {
-    let from = Instant::now();
-    std::thread::sleep(Duration::from_secs_f64(secs));
-    let to = Instant::now();
-    let m = p.msgs_between(from, to);
-    (m.len() as f64 / (to - from).as_secs_f64(), m)
-}
-
 /// Parses the last "average rate: X" of `rostopic hz` output.
 fn hz_of(out: &str) -> Option<f64> {
     out.lines()
         .rev()
         .filter_map(|l| l.trim().strip_prefix("average rate:"))
         .find_map(|v| v.trim().parse().ok())
+}
+
+/// Waits until `node` is in `rosnode list`.
+fn wait_registered(env: &RosEnv, node: &str) {
+    wait_for(
+        "the simnode in rosnode list",
+        Duration::from_secs(20),
+        || env.node_list().iter().any(|n| n == node),
+    );
+}
+
+/// Sends `sig` to the simnode `sim` named `node`: it exits within 5 s and
+/// leaves `rosnode list` within 10 s.
+fn exits_and_unregisters(env: &RosEnv, sim: &mut Proc, node: &str, sig: &str) {
+    assert!(
+        sim.signal_and_wait(sig, Duration::from_secs(5)),
+        "no prompt exit"
+    );
+    wait_for(
+        "the simnode to leave rosnode list",
+        Duration::from_secs(10),
+        || !env.node_list().iter().any(|n| n == node),
+    );
 }
 
 fn publisher_seen_by_real_tools(kind: MasterKind) {
@@ -50,11 +64,7 @@ fn publisher_seen_by_real_tools(kind: MasterKind) {
         "--cost-ms-per-msg",
         "1",
     ]);
-    wait_for(
-        "the simnode in rosnode list",
-        Duration::from_secs(20),
-        || env.node_list().contains(&node),
-    );
+    wait_registered(env, &node);
     let info = env.try_run("rosnode", &["info", &node]).unwrap_or_default();
     assert!(
         info.contains(&topic) && info.contains("std_msgs/UInt8MultiArray"),
@@ -65,7 +75,7 @@ fn publisher_seen_by_real_tools(kind: MasterKind) {
     // A rospy listener decodes the messages: rate, sizes, sequence, latency.
     let listener = env.script("listen.py", &[&unique("listener"), &topic]);
     wait_msgs(&listener, 5, "messages at the rospy listener");
-    let (rate, msgs) = measure(&listener, 3.0);
+    let (rate, msgs) = rate_over(&listener, 3.0);
     assert!(
         (16.0..=22.0).contains(&rate),
         "rospy listener saw {rate:.1} Hz of 20"
@@ -105,15 +115,7 @@ fn publisher_seen_by_real_tools(kind: MasterKind) {
     assert!(echo.contains("length: 1024"), "{echo}");
 
     // SIGTERM: prompt exit, unregistered.
-    assert!(
-        sim.signal_and_wait("-TERM", Duration::from_secs(5)),
-        "no prompt exit"
-    );
-    wait_for(
-        "the simnode to leave rosnode list",
-        Duration::from_secs(10),
-        || !env.node_list().contains(&node),
-    );
+    exits_and_unregisters(env, &mut sim, &node, "-TERM");
     let topics = env.try_run("rostopic", &["list", "-p"]).unwrap_or_default();
     assert!(!topics.contains(&topic), "{topics}");
 }
@@ -142,18 +144,14 @@ fn rospy_feeds_a_callback(kind: MasterKind) {
     // The simnode subscribes first, so it connects on publisherUpdate.
     let on = format!("{input}->{output}:cost-ms=3,bytes=48");
     let mut sim = env.simnode(&["--name", &node, "--on", &on]);
-    wait_for(
-        "the simnode in rosnode list",
-        Duration::from_secs(20),
-        || env.node_list().contains(&node),
-    );
+    wait_registered(env, &node);
     let listener = env.script("listen.py", &[&unique("listener"), &output]);
     wait_for("the listener", Duration::from_secs(20), || {
         listener.has_line("ready")
     });
     let _talker = env.script("talk.py", &[&unique("talker"), &input, "20", "300"]);
     wait_msgs(&listener, 5, "callback output at the rospy listener");
-    let (rate, msgs) = measure(&listener, 3.0);
+    let (rate, msgs) = rate_over(&listener, 3.0);
     assert!(
         (16.0..=22.0).contains(&rate),
         "callback output {rate:.1} Hz of 20"
@@ -169,15 +167,7 @@ fn rospy_feeds_a_callback(kind: MasterKind) {
     );
     let info = env.try_run("rosnode", &["info", &node]).unwrap_or_default();
     assert!(info.contains("inbound") && info.contains(&input), "{info}");
-    assert!(
-        sim.signal_and_wait("-INT", Duration::from_secs(5)),
-        "no prompt exit"
-    );
-    wait_for(
-        "the simnode to leave rosnode list",
-        Duration::from_secs(10),
-        || !env.node_list().contains(&node),
-    );
+    exits_and_unregisters(env, &mut sim, &node, "-INT");
 }
 
 #[test]
@@ -205,15 +195,15 @@ fn adaptor_inserted_live_by_the_configbot_master_limits_a_callback() {
     let _nav = env.simnode(&["--name", &nav, "--on", &on]);
     let listener = env.script("listen.py", &[&unique("listener"), &cmd]);
     wait_msgs(&listener, 10, "callback output");
-    let (direct, _) = measure(&listener, 2.0);
+    let (direct, _) = rate_over(&listener, 2.0);
     // The master points the simnode at its adaptor (publisherUpdate); the
     // simnode drops the direct connection and takes 10 of 30 Hz.
     m.set_adaptor(&scan, &nav, Some(10.0));
     std::thread::sleep(Duration::from_secs(2));
-    let (adapted, _) = measure(&listener, 3.0);
+    let (adapted, _) = rate_over(&listener, 3.0);
     m.set_adaptor(&scan, &nav, None);
     std::thread::sleep(Duration::from_secs(2));
-    let (back, _) = measure(&listener, 2.0);
+    let (back, _) = rate_over(&listener, 2.0);
     eprintln!(
         "callback output: direct {direct:.1} Hz, adapted to 10: {adapted:.1} Hz, removed: {back:.1} Hz"
     );

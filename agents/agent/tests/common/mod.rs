@@ -9,8 +9,8 @@ use std::path::PathBuf;
 use std::sync::atomic::{AtomicU32, Ordering};
 use std::time::{Duration, Instant};
 
-use configbot_agent::{Agent, AgentEvent, AgentSettings, StackSpec};
-use configbot_cgroups::{CgroupBackend, Layout, NodeName, SubtreeRoot, V1Backend};
+use configbot_agent::{Agent, AgentEvent, AgentSettings, ConfigUpdate, StackSpec};
+use configbot_cgroups::{CgroupBackend, CpuLimit, Layout, NodeName, SubtreeRoot, V1Backend};
 
 static COUNTER: AtomicU32 = AtomicU32::new(0);
 
@@ -150,6 +150,24 @@ pub async fn wait_until(timeout: Duration, what: &str, mut cond: impl FnMut() ->
         assert!(Instant::now() < deadline, "timed out waiting for {what}");
         tokio::time::sleep(Duration::from_millis(20)).await;
     }
+}
+
+/// Waits until node `n` of `agent` has a process in its cgroup.
+pub async fn wait_running(agent: &Agent, n: &NodeName, timeout: Duration, what: &str) {
+    wait_until(timeout, what, || {
+        !agent.backend().pids(n).unwrap().is_empty()
+    })
+    .await;
+}
+
+/// Puts a config that sets node `n`'s CPU limit and no adaptor rates.
+pub fn set_limit(agent: &Agent, n: &NodeName, limit: CpuLimit) {
+    agent
+        .put_config(ConfigUpdate {
+            limits: [(n.clone(), limit)].into(),
+            adaptor_rates: Vec::new(),
+        })
+        .unwrap();
 }
 
 /// CPUs used by a node's cgroup over `window`.

@@ -153,6 +153,17 @@ impl RtEnv {
         }
     }
 
+    /// A new env and its runtime with the ROS data plane, `monitor` and an
+    /// empty stack; `None` (having said SKIPPED) when ROS is not installed.
+    pub async fn start_with_ros(monitor: Option<Preference>) -> Option<(RtEnv, NodeRuntime)> {
+        if !ros_available() {
+            return None;
+        }
+        let mut env = RtEnv::new();
+        let rt = env.start(true, monitor, StackSpec::default()).await;
+        Some((env, rt))
+    }
+
     pub async fn start(
         &mut self,
         ros: bool,
@@ -198,6 +209,25 @@ impl RtEnv {
             self.path("ros").display()
         )
     }
+
+    /// The `spec.apps` entry (for [`stack_yaml`]) of a core app whose nodes
+    /// run rospy scripts from tests/scripts under Debian's python, each
+    /// given as (ROS name, script, the script's arguments).
+    pub fn rospy_core_app(&self, app: &str, nodes: &[(&str, &str, &[&str])]) -> String {
+        let mut yaml = format!("    - name: {app}\n      core: true\n      nodes:\n");
+        for (name, file, args) in nodes {
+            let args: Vec<String> = std::iter::once(script(file))
+                .chain(args.iter().map(|a| a.to_string()))
+                .map(|a| format!("\"{a}\""))
+                .collect();
+            yaml += &format!(
+                "        - name: {name}\n          run:\n            command: /usr/bin/python3\n            args: [{}]\n            env: {}\n",
+                args.join(", "),
+                self.ros_env_yaml()
+            );
+        }
+        yaml
+    }
 }
 
 impl Drop for RtEnv {
@@ -215,6 +245,14 @@ impl Drop for RtEnv {
             );
         }
     }
+}
+
+/// A RobotStack manifest named `bot` whose `spec.apps` are `apps`: YAML
+/// list entries indented four spaces.
+pub fn stack_yaml(apps: &str) -> String {
+    format!(
+        "apiVersion: configbot.dev/v1alpha1\nkind: RobotStack\nmetadata: {{name: bot}}\nspec:\n  apps:\n{apps}"
+    )
 }
 
 /// Parses one RobotStack manifest.

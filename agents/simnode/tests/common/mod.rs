@@ -322,6 +322,16 @@ pub fn wait_for(what: &str, timeout: Duration, mut f: impl FnMut() -> bool) {
     panic!("timed out after {timeout:?} waiting for {what}");
 }
 
+/// Rate (Hz) of the messages `p` printed over the next `secs` seconds, and
+/// those messages.
+pub fn rate_over(p: &Proc, secs: f64) -> (f64, Vec<(u64, f64, usize)>) {
+    let from = Instant::now();
+    std::thread::sleep(Duration::from_secs_f64(secs));
+    let to = Instant::now();
+    let m = p.msgs_between(from, to);
+    (m.len() as f64 / (to - from).as_secs_f64(), m)
+}
+
 /// User + system CPU time of process `pid` (from /proc/PID/stat).
 pub fn cpu_time(pid: u32) -> Duration {
     let s = std::fs::read_to_string(format!("/proc/{pid}/stat")).unwrap();
