@@ -227,6 +227,34 @@ impl KnobSpace {
         (self.to_config(&y) != self.to_config(x)).then_some(y)
     }
 
+    /// The point that drains the non-core apps before `x` is applied: every
+    /// adaptor feeding a non-core subscriber at its minimum rate (no new
+    /// work) and every non-core node's CPU at its maximum (finish the old
+    /// work fast); other knobs as in `x`. `None` without such an adaptor (no
+    /// input to hold back).
+    pub fn drain_point(&self, x: &[f64]) -> Option<Vec<f64>> {
+        let adaptor = |k: &KnobDef| matches!(k.target, KnobTarget::Adaptor { .. });
+        if self.knobs.len() != x.len()
+            || !self
+                .knobs
+                .iter()
+                .any(|k| k.restricts_non_core && adaptor(k))
+        {
+            return None;
+        }
+        Some(
+            self.knobs
+                .iter()
+                .zip(x)
+                .map(|(k, &v)| match (k.restricts_non_core, adaptor(k)) {
+                    (true, true) => k.min,
+                    (true, false) => k.max,
+                    (false, _) => v,
+                })
+                .collect(),
+        )
+    }
+
     /// The knob list as status shows it.
     pub fn status(&self) -> Vec<KnobStatus> {
         self.knobs
@@ -471,5 +499,23 @@ mod tests {
         let floor = vec![1.0, 1.0, 0.05, 0.05, 0.05, 0.5, 0.5];
         assert_eq!(s.backed_off(&floor, 0.5), None);
         assert_eq!(s.backed_off(&x, 1.0), None);
+    }
+    #[test]
+    fn draining_holds_back_non_core_input_and_frees_non_core_cpu() {
+        let mut sp = spec();
+        sp.knobs.cpu.fix_core_nodes = false;
+        let all = ["/lidar", "/planner", "/camera", "/detector", "/web"];
+        let s = derive(&stack(), &sp, &graph(&all), &rates(), 2.0).unwrap();
+        let x = vec![1.0, 1.2, 0.3, 0.4, 0.5, 10.0, 3.0];
+        // Core CPU kept; non-core CPU at max (2.0); adaptors at min (0.5).
+        assert_eq!(
+            s.drain_point(&x),
+            Some(vec![1.0, 1.2, 2.0, 2.0, 2.0, 0.5, 0.5])
+        );
+        let cpu_only = KnobSpace {
+            knobs: s.knobs[..5].to_vec(),
+            period_micros: s.period_micros,
+        };
+        assert_eq!(cpu_only.drain_point(&x[..5]), None, "no input to hold back");
     }
 }

@@ -103,6 +103,16 @@ pub enum State {
         graph: Graph,
         prior: Option<Box<ConfigProfile>>,
     },
+    /// Drain the non-core apps (see [`settle`]) with `config` applied, then go
+    /// on to `then` (a `TrialApply` or a `VerifyApply`).
+    Drain {
+        config: ResourceConfig,
+        then: Box<State>,
+        #[serde(default)]
+        applied: bool,
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        so_far: Option<MeasureReport>,
+    },
     TrialApply {
         x: Vec<f64>,
         config: ResourceConfig,
@@ -251,6 +261,12 @@ impl Run {
                 candidate, config, ..
             }
             | State::Verify { candidate, config } => State::VerifyApply { candidate, config },
+            State::Drain { config, then, .. } => State::Drain {
+                config,
+                then,
+                applied: false,
+                so_far: None,
+            },
             s => s,
         };
         self
@@ -263,6 +279,10 @@ impl Run {
             State::TrialApply { .. } | State::TrialSettle { .. } | State::TrialProfile { .. } => {
                 "Tuning"
             }
+            State::Drain { then, .. } => match **then {
+                State::VerifyApply { .. } => "Satisfied",
+                _ => "Tuning",
+            },
             State::VerifyApply { .. } | State::VerifySettle { .. } | State::Verify { .. } => {
                 "Satisfied"
             }
@@ -350,6 +370,12 @@ pub fn effect(run: &Run, env: &Env<'_>) -> Effect {
             Effect::Apply(config.clone())
         }
         State::UnsatApply { config } => Effect::Apply(config.clone()),
+        State::Drain {
+            config,
+            applied: false,
+            ..
+        } => Effect::Apply(config.clone()),
+        State::Drain { so_far, .. } => probe(settle::drain_ms(so_far.as_ref())),
         State::TrialSettle { so_far, .. } | State::VerifySettle { so_far, .. } => {
             match settle::next(env.spec.tuning.settle_seconds, so_far.as_ref()) {
                 Wait::Sleep(d) => Effect::Sleep(d),
@@ -389,7 +415,8 @@ pub fn step(mut run: Run, input: Input, env: &Env<'_>) -> (Run, Vec<Output>) {
         match &state {
             State::TrialApply { config, .. }
             | State::VerifyApply { config, .. }
-            | State::UnsatApply { config } => run.current = config.clone(),
+            | State::UnsatApply { config }
+            | State::Drain { config, .. } => run.current = config.clone(),
             State::RemediateApply { .. } => run.current = ResourceConfig::default(),
             _ => {}
         }
@@ -407,7 +434,8 @@ pub fn step(mut run: Run, input: Input, env: &Env<'_>) -> (Run, Vec<Output>) {
         // The graph changed under a trial or a verification: its measurements
         // are for another context, so the run starts over for the new one.
         (
-            State::TrialApply { .. }
+            State::Drain { .. }
+            | State::TrialApply { .. }
             | State::TrialSettle { .. }
             | State::TrialProfile { .. }
             | State::VerifyApply { .. }
@@ -472,6 +500,44 @@ pub fn step(mut run: Run, input: Input, env: &Env<'_>) -> (Run, Vec<Output>) {
         }
         (State::Baseline { graph, prior }, Input::Measured(r)) => {
             baseline_done(&mut run, env, &defs, &graph, prior.as_deref(), &r, &mut out)
+        }
+        (
+            State::Drain {
+                config,
+                then,
+                applied: false,
+                ..
+            },
+            Input::Applied,
+        ) => State::Drain {
+            config,
+            then,
+            applied: true,
+            so_far: None,
+        },
+        (
+            State::Drain {
+                config,
+                then,
+                applied: true,
+                so_far,
+            },
+            Input::Measured(r),
+        ) => {
+            let all = match &so_far {
+                Some(p) => measure::concat(p, &r),
+                None => r,
+            };
+            if settle::drained(&defs, &all) {
+                *then
+            } else {
+                State::Drain {
+                    config,
+                    then,
+                    applied: true,
+                    so_far: Some(all),
+                }
+            }
         }
         (State::TrialApply { x, config }, Input::Applied) => {
             if env.spec.tuning.settle_seconds > 0.0 {
@@ -848,7 +914,7 @@ fn next_trial(run: &mut Run, env: &Env<'_>, defs: &[MetricDef], out: &mut Vec<Ou
             Ok(Proposal::Try(x)) => {
                 let config = run.knobs.to_config(&x);
                 let x = run.knobs.from_config(&config);
-                return State::TrialApply { x, config };
+                return drain_first(run, env, State::TrialApply { x, config });
             }
             Ok(Proposal::Stop(r)) => {
                 out.push(normal("TuningStopped", format!("optimizer stopped: {r:?}")))
@@ -857,6 +923,32 @@ fn next_trial(run: &mut Run, env: &Env<'_>, defs: &[MetricDef], out: &mut Vec<Ou
         }
     }
     finish(run, env, defs, out)
+}
+
+/// `then` (applying a trial's config, or verifying a config of this run's
+/// knobs), after a drain of the non-core apps when the spec's settle is
+/// adaptive and some adaptor feeds a non-core app (see [`settle`]).
+pub(crate) fn drain_first(run: &Run, env: &Env<'_>, then: State) -> State {
+    if !settle::drains(env.spec.tuning.settle_seconds) {
+        return then;
+    }
+    let config = match &then {
+        State::TrialApply { config, .. }
+        | State::VerifyApply {
+            candidate: Candidate::Trial { .. } | Candidate::Backoff { .. },
+            config,
+        } => config,
+        _ => return then,
+    };
+    match run.knobs.drain_point(&run.knobs.from_config(config)) {
+        Some(d) => State::Drain {
+            config: run.knobs.to_config(&d),
+            then: Box::new(then),
+            applied: false,
+            so_far: None,
+        },
+        None => then,
+    }
 }
 
 /// Pick the best unrejected feasible trial to verify, or end Unsat with the safest config.
@@ -877,10 +969,11 @@ pub(crate) fn finish(
         })
         .map(|(i, t)| (i, t.config.clone()));
     if let Some((index, config)) = best {
-        return State::VerifyApply {
+        let verify = State::VerifyApply {
             candidate: Candidate::Trial { index },
             config,
         };
+        return drain_first(run, env, verify);
     }
     if let Some(b) = &run.baseline
         && b.feasible()
@@ -892,7 +985,6 @@ pub(crate) fn finish(
             config: b.config.clone(),
         };
     }
-    let _ = env;
     let (config, reason) = unsat_reason(run, defs);
     out.push(warning("Unsat", reason.clone()));
     run.reason = Some(reason);

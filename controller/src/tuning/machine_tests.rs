@@ -115,6 +115,7 @@ fn name(s: &State) -> &'static str {
     match s {
         State::Observe { .. } => "Observe",
         State::Baseline { .. } => "Baseline",
+        State::Drain { .. } => "Drain",
         State::TrialApply { .. } => "TrialApply",
         State::TrialSettle { .. } => "TrialSettle",
         State::TrialProfile { .. } => "TrialProfile",
@@ -861,6 +862,84 @@ fn a_long_settle_is_measured_and_extended_while_a_core_metric_recovers() {
     let (run, out) = step(run, report(&[38.0, 38.0, 37.0], 5.0), &env);
     assert_eq!(name(&run.state), "Verify", "steady at once: no extension");
     assert!(out.is_empty());
+}
+
+#[test]
+fn with_an_adaptive_settle_configs_are_applied_after_a_drain_of_the_non_core_apps() {
+    let mut out = Vec::new();
+    // Short settles (tests, simulations) do not drain.
+    let (st1, sp1) = (stack(), spec(1.0, 5));
+    let env1 = env(&st1, &sp1);
+    let mut run = with_two_trials(&env1);
+    run.state = finish(&mut run, &env1, &env1.defs(), &mut out);
+    assert_eq!(name(&run.state), "VerifyApply");
+    let (st, sp) = (stack(), spec(4.0, 5));
+    let env = env(&st, &sp);
+    let mut run = with_two_trials(&env);
+    // An adaptor into the detector too: its input can be held back.
+    run.knobs.knobs.push(knobs::KnobDef {
+        name: knobs::adaptor_knob_name("/image", "/detector"),
+        target: knobs::KnobTarget::Adaptor {
+            topic: "/image".into(),
+            subscriber: "/detector".into(),
+        },
+        min: 0.5,
+        max: 30.0,
+        restricts_non_core: true,
+    });
+    for t in &mut run.trials {
+        t.x.push(5.0);
+        t.config = run.knobs.to_config(&t.x);
+    }
+    let best = run.trials[1].config.clone();
+    run.state = finish(&mut run, &env, &env.defs(), &mut out);
+    let State::Drain { config, then, .. } = &run.state else {
+        panic!("{:?}", run.state)
+    };
+    assert_eq!(
+        **then,
+        State::VerifyApply {
+            candidate: Candidate::Trial { index: 1 },
+            config: best.clone()
+        }
+    );
+    assert_eq!(config.cpu["/detector"], 2.0, "non-core CPU freed");
+    assert_eq!(
+        config.cpu["/planner"], 1.5,
+        "core knobs as in the candidate"
+    );
+    assert_eq!(config.adaptors[0].rate_hz, 0.5, "non-core input held back");
+    assert_eq!(run.phase(), "Satisfied");
+    let drain = config.clone();
+    assert_eq!(effect(&run, &env), Effect::Apply(drain.clone()));
+    let (run, _) = step(run, Input::Applied, &env);
+    assert_eq!(run.current, drain);
+    let Effect::Measure(m) = effect(&run, &env) else {
+        panic!()
+    };
+    assert_eq!(m.duration_ms, settle::DRAIN_FIRST_MS);
+    // Navigation starved while the detector finishes its backlog, then back.
+    let (run, _) = step(run, report(&[12.0, 14.0], 0.0), &env);
+    assert_eq!(name(&run.state), "Drain");
+    let (run, _) = step(run, report(&[37.0], 0.0), &env);
+    assert_eq!(name(&run.state), "Drain", "on target but moved 23 Hz");
+    let resumed = run.clone().resumed();
+    assert!(matches!(
+        resumed.state,
+        State::Drain {
+            applied: false,
+            so_far: None,
+            ..
+        }
+    ));
+    let (run, _) = step(run, report(&[38.0], 0.0), &env);
+    assert_eq!(
+        run.state,
+        State::VerifyApply {
+            candidate: Candidate::Trial { index: 1 },
+            config: best
+        }
+    );
 }
 
 #[test]

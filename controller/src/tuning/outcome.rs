@@ -11,8 +11,8 @@ use configbot_optimizer::Observation;
 use super::knobs::KnobSpace;
 use super::library;
 use super::machine::{
-    BACKOFF_MIN, BACKOFF_STEP, Candidate, Env, Output, Run, SATISFIED, State, TrialRecord, finish,
-    normal, warning,
+    BACKOFF_MIN, BACKOFF_STEP, Candidate, Env, Output, Run, SATISFIED, State, TrialRecord,
+    drain_first, finish, normal, warning,
 };
 use super::measure::{self, MetricDef};
 use super::monitor::{ConstraintMonitor, Trigger};
@@ -186,13 +186,14 @@ fn back_off(
                 next * 100.0
             ),
         ));
-        return State::VerifyApply {
+        let verify = State::VerifyApply {
             candidate: Candidate::Backoff {
                 index,
                 fraction: next,
             },
             config: run.knobs.to_config(&y),
         };
+        return drain_first(run, env, verify);
     }
     finish(run, env, defs, out)
 }

@@ -10,6 +10,17 @@
 //! still moves — its last window differs from the mean of the two before by
 //! more than [`MOVING`] of its target — up to [`MAX_FACTOR`] × `settleSeconds`.
 //! Shorter settles (tests, simulations) are plain sleeps.
+//!
+//! A non-core node that piled up work (frames in flight) can stay stuck: when
+//! new work arrives faster than its CPU limit lets it finish the old, no
+//! settle ends the backlog, and every config measured after a CPU-starved one
+//! would look worse than it is (the bench's first runs learned a wrong
+//! feasibility boundary from such trials). So adaptive settles also *drain*
+//! first: before a trial's or a candidate's config is applied, the non-core
+//! apps get their minimum input and their maximum CPU (see
+//! `KnobSpace::drain_point`) until the core metrics meet their targets and
+//! hold still ([`drained`]), at most [`DRAIN_MAX_SECONDS`]. Each config is then
+//! measured from the same, empty state, as the optimizer's model assumes.
 
 use std::time::Duration;
 
@@ -26,6 +37,39 @@ pub const MAX_FACTOR: f64 = 3.0;
 pub const MOVING: f64 = 0.1;
 /// Length of one adaptive extension (one sub-window).
 pub const STEP_MS: u64 = 1000;
+
+/// The first drain measurement; then one [`STEP_MS`] at a time.
+pub const DRAIN_FIRST_MS: u64 = 2000;
+/// A drain ends at the latest after this many seconds.
+pub const DRAIN_MAX_SECONDS: f64 = 10.0;
+
+/// Whether configs are drained into (adaptive settles only).
+pub fn drains(settle_seconds: f64) -> bool {
+    settle_seconds >= ADAPTIVE_FROM_SECONDS
+}
+
+/// The next drain measurement's length, given what it measured so far.
+pub fn drain_ms(so_far: Option<&MeasureReport>) -> u64 {
+    so_far.map_or(DRAIN_FIRST_MS, |_| STEP_MS)
+}
+
+/// Whether a drain that measured `so_far` is over: in its last window every
+/// core metric met its target and moved less than [`MOVING`] of it since the
+/// window before — or it took [`DRAIN_MAX_SECONDS`].
+pub fn drained(defs: &[MetricDef], so_far: &MeasureReport) -> bool {
+    if so_far.duration_ms as f64 / 1000.0 + 1e-9 >= DRAIN_MAX_SECONDS {
+        return true;
+    }
+    defs.iter().filter(|d| d.core).all(|d| {
+        let Some(s) = so_far.series.iter().find(|s| s.probe == d.probe) else {
+            return true;
+        };
+        let &[.., before, last] = &s.values[..] else {
+            return false;
+        };
+        d.holds(last) && (last - before).abs() <= MOVING * d.target.abs()
+    })
+}
 
 /// What the settle does next.
 #[derive(Debug, Clone, PartialEq)]
@@ -157,5 +201,28 @@ mod tests {
         let r = report(&noisy, &[2.0; 12]);
         assert!(done(&d, 4.0, &r), "12 s = 3 × 4 s is the most");
         assert!(moving(&d, &report(&[38.0, 38.0], &[1.0; 2])) == vec!["cmd"]);
+    }
+    #[test]
+    fn a_drain_ends_when_the_core_is_back_on_target_and_still() {
+        let d = defs();
+        assert!(drains(4.0) && !drains(1.0));
+        assert_eq!(drain_ms(None), DRAIN_FIRST_MS);
+        // The detector finishes its backlog at full CPU: navigation starved.
+        let r = report(&[12.0, 14.0], &[0.0; 2]);
+        assert!(!drained(&d, &r));
+        assert_eq!(drain_ms(Some(&r)), STEP_MS);
+        assert!(!drained(&d, &report(&[12.0, 14.0, 30.0], &[0.0; 3])));
+        assert!(
+            !drained(&d, &report(&[12.0, 14.0, 36.0], &[0.0; 3])),
+            "moved 22 Hz"
+        );
+        assert!(drained(&d, &report(&[12.0, 14.0, 36.0, 38.0], &[0.0; 4])));
+        // Never on target: ten seconds at most.
+        assert!(!drained(&d, &report(&[20.0; 9], &[0.0; 9])));
+        assert!(drained(&d, &report(&[20.0; 10], &[0.0; 10])));
+        assert!(
+            !drained(&d, &report(&[38.0], &[0.0])),
+            "one window says nothing"
+        );
     }
 }
