@@ -6,6 +6,7 @@ use configbot_dataplane::{Graph, NodeInfo, TopicInfo};
 use configbot_manifests::{PerformanceSpec, RobotStack};
 
 use super::*;
+use crate::tuning::knobs;
 
 fn stack() -> RobotStack {
     let n = |name: &str| serde_json::json!({"name": name, "run": {"command": "x"}});

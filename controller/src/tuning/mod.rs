@@ -3,7 +3,8 @@
 //!
 //! Pure decisions: [`knobs`] (the knob space), [`measure`] (satisfaction and
 //! non-core performance), [`machine`] (the run as one state enum and one
-//! transition function), [`settle`] (how long a trial waits after its config
+//! transition function), [`search`] (baseline → knobs → trials → the best
+//! to verify), [`settle`] (how long a trial waits after its config
 //! is applied), [`monitor`] (constraint monitor, triggers),
 //! [`library`] (contexts and ConfigProfiles). IO at the edges: [`robot`] (the
 //! trait `crate::robot` implements for the node runtime), [`runner`] (one task per
@@ -18,6 +19,7 @@ pub mod monitor;
 pub mod outcome;
 pub mod robot;
 pub mod runner;
+pub mod search;
 pub mod settle;
 pub mod sim;
 pub mod status;

@@ -1,0 +1,330 @@
+//! The search part of a tuning run (pure): from the baseline measurement to
+//! the knob space and the optimizer, each trial recorded and the next one
+//! asked for (after a drain of the non-core apps, see [`super::settle`]), and
+//! the best trial to verify or the Unsat outcome; plus the rules that decide
+//! whether safe exploration applies.
+
+use configbot_agent::measure::MeasureReport;
+use configbot_dataplane::Graph;
+use configbot_manifests::{ConfigProfile, ResourceConfig};
+use configbot_optimizer::{Optimizer, Proposal, SafetyFloor, Settings};
+
+use super::knobs::{self, KnobSpace};
+use super::library;
+use super::machine::{Candidate, Env, Output, Run, SATISFIED, State, TrialRecord, normal, warning};
+use super::measure::{self, MetricDef};
+use super::outcome::{observation, problem, remediate, unsat_reason};
+use super::settle;
+
+/// One more settle measurement: `None` when the settle is over (with an
+/// event when it took longer than `settleSeconds`), else all it measured so far.
+pub(crate) fn settled(
+    env: &Env<'_>,
+    defs: &[MetricDef],
+    so_far: Option<&MeasureReport>,
+    r: MeasureReport,
+    out: &mut Vec<Output>,
+) -> Option<MeasureReport> {
+    let all = match so_far {
+        Some(p) => measure::concat(p, &r),
+        None => r,
+    };
+    let min = env.spec.tuning.settle_seconds;
+    if !settle::done(defs, min, &all) {
+        return Some(all);
+    }
+    let waited = all.duration_ms as f64 / 1000.0;
+    if waited > min + 0.5 {
+        let still = settle::moving(defs, &all);
+        out.push(normal(
+            "SettledLate",
+            format!(
+                "the config settled after {waited:.0} s, not {min:.0} s: core metrics recovered from the previous config{}",
+                if still.is_empty() {
+                    String::new()
+                } else {
+                    format!(" (still moving at the limit: {})", still.join(", "))
+                }
+            ),
+        ));
+    }
+    None
+}
+
+pub(crate) fn baseline_done(
+    run: &mut Run,
+    env: &Env<'_>,
+    defs: &[MetricDef],
+    graph: &Graph,
+    prior: Option<&ConfigProfile>,
+    r: &MeasureReport,
+    out: &mut Vec<Output>,
+) -> State {
+    let s = env.spec.tuning.scalarization;
+    let eval = measure::evaluate(defs, r, s);
+    let rates = measure::topic_rates(r);
+    run.knobs = match knobs::derive(&env.stack.spec, env.spec, graph, &rates, env.cpus) {
+        Ok(k) => k,
+        Err(e) => {
+            out.push(warning("KnobsInvalid", e.to_string()));
+            KnobSpace::default()
+        }
+    };
+    // The config running now, as the knobs see it (unset knobs at their upper bound).
+    let x = run.knobs.from_config(&run.current);
+    let config = run.knobs.to_config(&x);
+    out.push(normal(
+        "Baseline",
+        format!(
+            "baseline: satisfaction {:.1} %, {} knobs: {}",
+            eval.satisfaction * 100.0,
+            run.knobs.knobs.len(),
+            run.knobs
+                .knobs
+                .iter()
+                .map(|k| k.name.as_str())
+                .collect::<Vec<_>>()
+                .join(", ")
+        ),
+    ));
+    let rec = TrialRecord {
+        config,
+        x,
+        eval,
+        censored: false,
+    };
+    let holds = rec.eval.satisfaction >= SATISFIED && rec.feasible();
+    run.baseline = Some(rec.clone());
+    if !env.tuning_allowed {
+        return if holds {
+            run.reason = Some("tuning is not allowed now; the current config holds".into());
+            State::VerifyApply {
+                candidate: Candidate::Baseline,
+                config: rec.config,
+            }
+        } else {
+            remediate(env, run.context.as_ref(), out)
+        };
+    }
+    if run.knobs.knobs.is_empty() {
+        return finish(run, env, defs, out);
+    }
+    let problem = match problem(&run.knobs, defs, env) {
+        Ok(p) => p,
+        Err(e) => {
+            out.push(warning("KnobsInvalid", e));
+            return finish(run, env, defs, out);
+        }
+    };
+    let all_safe = every_config_as_safe_as(&run.knobs, &rec.x);
+    if all_safe && env.spec.tuning.safety_floor.is_some() {
+        out.push(normal(
+            "SafeExplorationOff",
+            "every knob only restricts non-core apps and the baseline restricts none: \
+             no config can starve a core service more than the baseline did"
+                .to_string(),
+        ));
+    }
+    let settings = Settings {
+        seed: env.spec.tuning.seed,
+        max_trials: env.spec.tuning.max_trials as usize + 1,
+        safety: env
+            .spec
+            .tuning
+            .safety_floor
+            .filter(|f| baseline_is_safe(*f, defs, &rec.eval.constraints))
+            .filter(|_| !all_safe)
+            .map(|f| SafetyFloor {
+                fraction_of_target: f,
+                beta: 2.0,
+            }),
+        candidates: 400,
+        refine_steps: 15,
+        ..Settings::default()
+    };
+    let priors = prior
+        .map(|p| library::prior_observations(&run.knobs, defs, p))
+        .unwrap_or_default();
+    if !priors.is_empty() {
+        out.push(normal(
+            "WarmStart",
+            format!(
+                "relearning warm-started from {} library trials",
+                priors.len()
+            ),
+        ));
+    }
+    let opt = Optimizer::with_prior_observations(problem, settings, &rec.x, priors)
+        .and_then(|mut o| o.tell(observation(&rec)).map(|_| o));
+    match opt {
+        Ok(o) => run.optimizer = Some(o),
+        Err(e) => {
+            out.push(warning("OptimizerFailed", e.to_string()));
+            return finish(run, env, defs, out);
+        }
+    }
+    next_trial(run, env, defs, out)
+}
+
+/// Whether every core constraint of the baseline is on the safe side of the
+/// spec's safety floor. Safe exploration protects a robot that works; one
+/// already below the floor has nothing to protect (no config would count as
+/// safe and tuning could never start), so the run explores freely to restore
+/// the constraint as fast as it can.
+pub fn baseline_is_safe(floor: f64, defs: &[MetricDef], baseline: &[f64]) -> bool {
+    defs.iter().filter(|d| d.core).zip(baseline).all(|(d, v)| {
+        if d.at_least {
+            *v >= floor * d.target
+        } else {
+            *v <= d.target / floor
+        }
+    })
+}
+
+/// Whether no point of the knob space can be worse for the core services than
+/// the baseline `x`: every knob only restricts a non-core app (lowering it
+/// takes CPU or input away from non-core nodes alone) and the baseline sits at
+/// every knob's upper bound. Then the baseline is safe and so is everything
+/// below it, and safe exploration would only keep the search near the
+/// baseline — the one config already known not to be good enough.
+pub fn every_config_as_safe_as(knobs: &KnobSpace, x: &[f64]) -> bool {
+    knobs.knobs.len() == x.len()
+        && knobs
+            .knobs
+            .iter()
+            .zip(x)
+            .all(|(k, &v)| k.restricts_non_core && v >= k.max)
+}
+
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn record_trial(
+    run: &mut Run,
+    env: &Env<'_>,
+    defs: &[MetricDef],
+    x: Vec<f64>,
+    config: ResourceConfig,
+    report: &MeasureReport,
+    censored: bool,
+    out: &mut Vec<Output>,
+) {
+    let eval = measure::evaluate(defs, report, env.spec.tuning.scalarization);
+    let rec = TrialRecord {
+        config,
+        x,
+        eval,
+        censored,
+    };
+    if let Some(o) = &mut run.optimizer
+        && let Err(e) = o.tell(observation(&rec))
+    {
+        out.push(warning("OptimizerFailed", e.to_string()));
+    }
+    out.push(normal(
+        "Trial",
+        format!(
+            "trial {}: satisfaction {:.1} %, objective {}, {}{}",
+            run.trials.len(),
+            rec.eval.satisfaction * 100.0,
+            rec.eval
+                .objective
+                .map_or("-".to_string(), |o| format!("{o:.3}")),
+            if rec.feasible() {
+                "feasible"
+            } else {
+                "infeasible"
+            },
+            if censored { " (stopped early)" } else { "" }
+        ),
+    ));
+    run.trials.push(rec);
+}
+
+pub(crate) fn next_trial(
+    run: &mut Run,
+    env: &Env<'_>,
+    defs: &[MetricDef],
+    out: &mut Vec<Output>,
+) -> State {
+    if run.trials.len() < env.spec.tuning.max_trials as usize
+        && let Some(o) = &mut run.optimizer
+    {
+        match o.ask() {
+            Ok(Proposal::Try(x)) => {
+                let config = run.knobs.to_config(&x);
+                let x = run.knobs.from_config(&config);
+                return drain_first(run, env, State::TrialApply { x, config });
+            }
+            Ok(Proposal::Stop(r)) => {
+                out.push(normal("TuningStopped", format!("optimizer stopped: {r:?}")))
+            }
+            Err(e) => out.push(warning("OptimizerFailed", e.to_string())),
+        }
+    }
+    finish(run, env, defs, out)
+}
+
+/// `then` (applying a trial's config, or verifying a config of this run's
+/// knobs), after a drain of the non-core apps when the spec's settle is
+/// adaptive and some adaptor feeds a non-core app (see [`settle`]).
+pub(crate) fn drain_first(run: &Run, env: &Env<'_>, then: State) -> State {
+    if !settle::drains(env.spec.tuning.settle_seconds) {
+        return then;
+    }
+    let config = match &then {
+        State::TrialApply { config, .. }
+        | State::VerifyApply {
+            candidate: Candidate::Trial { .. } | Candidate::Backoff { .. },
+            config,
+        } => config,
+        _ => return then,
+    };
+    match run.knobs.drain_point(&run.knobs.from_config(config)) {
+        Some(d) => State::Drain {
+            config: run.knobs.to_config(&d),
+            then: Box::new(then),
+            applied: false,
+            so_far: None,
+        },
+        None => then,
+    }
+}
+
+/// Pick the best unrejected feasible trial to verify, or end Unsat with the safest config.
+pub(crate) fn finish(
+    run: &mut Run,
+    env: &Env<'_>,
+    defs: &[MetricDef],
+    out: &mut Vec<Output>,
+) -> State {
+    let best = run
+        .trials
+        .iter()
+        .enumerate()
+        .filter(|(i, t)| t.feasible() && !run.rejected.contains(i))
+        .max_by(|(_, a), (_, b)| {
+            let k = |t: &TrialRecord| (t.eval.objective.unwrap_or(0.0), t.eval.satisfaction);
+            k(a).partial_cmp(&k(b)).unwrap_or(std::cmp::Ordering::Equal)
+        })
+        .map(|(i, t)| (i, t.config.clone()));
+    if let Some((index, config)) = best {
+        let verify = State::VerifyApply {
+            candidate: Candidate::Trial { index },
+            config,
+        };
+        return drain_first(run, env, verify);
+    }
+    if let Some(b) = &run.baseline
+        && b.feasible()
+        && b.eval.satisfaction >= SATISFIED
+        && run.knobs.knobs.is_empty()
+    {
+        return State::VerifyApply {
+            candidate: Candidate::Baseline,
+            config: b.config.clone(),
+        };
+    }
+    let (config, reason) = unsat_reason(run, defs);
+    out.push(warning("Unsat", reason.clone()));
+    run.reason = Some(reason);
+    State::UnsatApply { config }
+}
