@@ -8,7 +8,6 @@
 
 mod common;
 
-use std::path::PathBuf;
 use std::process::{Child, Command, ExitStatus};
 use std::time::{Duration, Instant};
 
@@ -39,23 +38,10 @@ impl Drop for Bench {
         let _ = self.child.kill();
         let _ = self.child.wait();
         common::nuke(&self.root());
-        for dir in cgroup_dirs(&self.root()) {
+        for dir in common::cgroup_dirs(&self.root()) {
             let _ = std::fs::remove_dir(dir);
         }
     }
-}
-
-/// The subtree root in each v1 hierarchy, where it exists.
-fn cgroup_dirs(root: &str) -> Vec<PathBuf> {
-    let Ok(l) = configbot_cgroups::Layout::detect() else {
-        return Vec::new();
-    };
-    [l.v1_cpu, l.v1_cpuacct, l.v1_cpuset]
-        .into_iter()
-        .flatten()
-        .map(|m| m.join(root))
-        .filter(|d| d.exists())
-        .collect()
 }
 
 /// Every pid in a cgroup directory and its descendants.
@@ -161,7 +147,7 @@ fn interrupt_when(
     assert!(err.contains("interrupted"), "{}", logs());
 
     // The subtree is gone in every hierarchy, and so are the nodes.
-    let left = cgroup_dirs(&bench.root());
+    let left = common::cgroup_dirs(&bench.root());
     assert!(left.is_empty(), "left behind: {left:?}: {}", logs());
     let deadline = Instant::now() + Duration::from_secs(5);
     let mut running: Vec<u32> = nodes.clone();

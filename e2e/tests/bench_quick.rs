@@ -83,26 +83,13 @@ impl Drop for Bench {
         let _ = self.child.kill();
         let _ = self.child.wait();
         common::nuke(&self.root());
-        for dir in cgroup_dirs(&self.root()) {
+        for dir in common::cgroup_dirs(&self.root()) {
             let _ = std::fs::remove_dir(dir);
         }
         if let Some(d) = &self.ctl {
             let _ = std::fs::remove_dir(d);
         }
     }
-}
-
-/// The bench's cgroup root in each v1 hierarchy, where it exists.
-fn cgroup_dirs(root: &str) -> Vec<std::path::PathBuf> {
-    let Ok(l) = configbot_cgroups::Layout::detect() else {
-        return Vec::new();
-    };
-    [l.v1_cpu, l.v1_cpuacct, l.v1_cpuset]
-        .into_iter()
-        .flatten()
-        .map(|m| m.join(root))
-        .filter(|d| d.exists())
-        .collect()
 }
 
 /// Well-formed enough to be XML: one root `<svg>`, every tag closed in order.
@@ -319,7 +306,7 @@ fn quick_bench_writes_every_table_and_plot() {
         "bench --quick failed ({status}):\n{printed}"
     );
     // The bench removed its robot: no cgroup, so no node left in one.
-    let left = cgroup_dirs(&root);
+    let left = common::cgroup_dirs(&root);
     assert!(left.is_empty(), "left behind: {left:?}");
 
     let json: Value = serde_json::from_str(

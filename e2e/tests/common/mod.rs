@@ -383,6 +383,19 @@ fn v1_backend(root: &str) -> Option<V1Backend> {
     ))
 }
 
+/// A subtree root's directory in each v1 CPU hierarchy, where it exists.
+pub fn cgroup_dirs(root: &str) -> Vec<PathBuf> {
+    let Ok(l) = Layout::detect() else {
+        return Vec::new();
+    };
+    [l.v1_cpu, l.v1_cpuacct, l.v1_cpuset]
+        .into_iter()
+        .flatten()
+        .map(|m| m.join(root))
+        .filter(|d| d.exists())
+        .collect()
+}
+
 /// Kills every process in every node cgroup below `root`, then removes them.
 pub fn nuke(root: &str) {
     let Some(b) = v1_backend(root) else { return };
