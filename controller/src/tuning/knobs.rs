@@ -255,6 +255,33 @@ impl KnobSpace {
         )
     }
 
+    /// How much the point `x` gives the non-core apps: the mean position of
+    /// the knobs that only restrict a non-core app, each from 0 at its minimum
+    /// to 1 at its maximum (adaptor rates on a log scale, as the optimizer
+    /// sees them). 0 without such knobs.
+    pub fn non_core_share(&self, x: &[f64]) -> f64 {
+        let positions: Vec<f64> = self
+            .knobs
+            .iter()
+            .zip(x)
+            .filter(|(k, _)| k.restricts_non_core && k.max > k.min)
+            .map(|(k, &v)| {
+                let v = v.clamp(k.min, k.max);
+                match k.target {
+                    KnobTarget::Adaptor { .. } if k.min > 0.0 => {
+                        (v / k.min).ln() / (k.max / k.min).ln()
+                    }
+                    _ => (v - k.min) / (k.max - k.min),
+                }
+            })
+            .collect();
+        if positions.is_empty() {
+            0.0
+        } else {
+            positions.iter().sum::<f64>() / positions.len() as f64
+        }
+    }
+
     /// The knob list as status shows it.
     pub fn status(&self) -> Vec<KnobStatus> {
         self.knobs
@@ -517,5 +544,23 @@ mod tests {
             period_micros: s.period_micros,
         };
         assert_eq!(cpu_only.drain_point(&x[..5]), None, "no input to hold back");
+    }
+    #[test]
+    fn the_non_core_share_is_the_mean_position_of_the_non_core_knobs() {
+        let mut sp = spec();
+        sp.knobs.cpu.fix_core_nodes = false;
+        let all = ["/lidar", "/planner", "/camera", "/detector", "/web"];
+        let s = derive(&stack(), &sp, &graph(&all), &rates(), 2.0).unwrap();
+        // cpu 0.05..2 (camera, detector, web non-core); rates 0.5..30 / 0.5..40 (log).
+        let floor = vec![2.0, 2.0, 0.05, 0.05, 0.05, 0.5, 0.5];
+        assert!(
+            s.non_core_share(&floor).abs() < 1e-12,
+            "core knobs do not count"
+        );
+        let top = vec![0.05, 0.05, 2.0, 2.0, 2.0, 30.0, 40.0];
+        assert!((s.non_core_share(&top) - 1.0).abs() < 1e-12);
+        // /image>/detector at sqrt(0.5 × 30) is half way on the log scale.
+        let mid = vec![1.0, 1.0, 0.05, 0.05, 0.05, (0.5f64 * 30.0).sqrt(), 0.5];
+        assert!((s.non_core_share(&mid) - 0.1).abs() < 1e-9);
     }
 }

@@ -6,7 +6,7 @@ use configbot_dataplane::{Graph, NodeInfo, TopicInfo};
 use configbot_manifests::{PerformanceSpec, RobotStack};
 
 use super::*;
-use crate::tuning::knobs;
+use crate::tuning::{knobs, search};
 
 fn stack() -> RobotStack {
     let n = |name: &str| serde_json::json!({"name": name, "run": {"command": "x"}});
@@ -941,6 +941,33 @@ fn with_an_adaptive_settle_configs_are_applied_after_a_drain_of_the_non_core_app
             config: best
         }
     );
+}
+
+#[test]
+fn the_trial_to_verify_is_the_near_best_one_that_gives_non_core_apps_the_least() {
+    let (st, sp) = (stack(), spec(1.0, 5));
+    let env = env(&st, &sp);
+    let mut run = with_two_trials(&env);
+    run.trials.clear();
+    // /detector's CPU (non-core), /planner's (core); `det` targets 10.
+    for (x, det) in [([1.9, 1.5], 12.0), ([1.0, 1.5], 9.7), ([0.5, 1.5], 8.0)] {
+        let Input::Measured(r) = report(&OK, det) else {
+            unreachable!()
+        };
+        run.trials.push(TrialRecord {
+            config: run.knobs.to_config(&x),
+            x: x.to_vec(),
+            eval: measure::evaluate(&env.defs(), &r, Default::default()),
+            censored: false,
+        });
+    }
+    assert_eq!(
+        search::best_trial(&run),
+        Some(1),
+        "0.97 is as good as the capped 1.0 within a message; 0.8 is not"
+    );
+    run.rejected.push(1);
+    assert_eq!(search::best_trial(&run), Some(0));
 }
 
 #[test]
