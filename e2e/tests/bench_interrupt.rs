@@ -35,12 +35,8 @@ impl Bench {
 
 impl Drop for Bench {
     fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-        common::nuke(&self.root());
-        for dir in common::cgroup_dirs(&self.root()) {
-            let _ = std::fs::remove_dir(dir);
-        }
+        let root = self.root();
+        common::kill_and_remove(&mut self.child, &root);
     }
 }
 

@@ -396,6 +396,17 @@ pub fn cgroup_dirs(root: &str) -> Vec<PathBuf> {
         .collect()
 }
 
+/// Kills a `configbot` process that owns the subtree `root`, then every
+/// node process below it, and removes the subtree from each CPU hierarchy.
+pub fn kill_and_remove(child: &mut Child, root: &str) {
+    let _ = child.kill();
+    let _ = child.wait();
+    nuke(root);
+    for dir in cgroup_dirs(root) {
+        let _ = std::fs::remove_dir(dir);
+    }
+}
+
 /// Kills every process in every node cgroup below `root`, then removes them.
 pub fn nuke(root: &str) {
     let Some(b) = v1_backend(root) else { return };
