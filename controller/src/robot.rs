@@ -80,6 +80,10 @@ fn wrap<E: std::error::Error + Send + Sync + 'static>(
     move |e| RobotError::wrap(op, e)
 }
 
+fn bag_path(p: Option<std::path::PathBuf>) -> Option<String> {
+    p.map(|p| p.display().to_string())
+}
+
 impl Robot for EmbeddedRobot {
     fn apply<'a>(&'a self, cfg: &'a ResourceConfig) -> BoxFuture<'a, Result<(), RobotError>> {
         Box::pin(async move { self.runtime.apply(cfg).await.map_err(wrap("apply")) })
@@ -102,6 +106,42 @@ impl Robot for EmbeddedRobot {
 
     fn start_app<'a>(&'a self, app: &'a str) -> BoxFuture<'a, Result<(), RobotError>> {
         Box::pin(async move { self.runtime.start_app(app).await.map_err(wrap("start_app")) })
+    }
+
+    fn freeze_app<'a>(
+        &'a self,
+        app: &'a str,
+        frozen: bool,
+    ) -> BoxFuture<'a, Result<(), RobotError>> {
+        Box::pin(async move {
+            if frozen {
+                self.runtime.freeze_app(app).await
+            } else {
+                self.runtime.thaw_app(app).await
+            }
+            .map_err(wrap("freeze_app"))
+        })
+    }
+
+    fn start_recording<'a>(
+        &'a self,
+        name: &'a str,
+        topics: &'a [String],
+    ) -> BoxFuture<'a, Result<Option<String>, RobotError>> {
+        Box::pin(async move {
+            let p = self.runtime.start_recording(name, topics).await;
+            p.map(bag_path).map_err(wrap("start_recording"))
+        })
+    }
+
+    fn stop_recording<'a>(
+        &'a self,
+        name: &'a str,
+    ) -> BoxFuture<'a, Result<Option<String>, RobotError>> {
+        Box::pin(async move {
+            let p = self.runtime.stop_recording(name).await;
+            p.map(bag_path).map_err(wrap("stop_recording"))
+        })
     }
 
     fn events(&self) -> broadcast::Receiver<RobotEvent> {
@@ -209,6 +249,42 @@ impl Robot for RemoteRobot {
 
     fn start_app<'a>(&'a self, app: &'a str) -> BoxFuture<'a, Result<(), RobotError>> {
         Box::pin(async move { self.client.start_app(app).await.map_err(wrap("start_app")) })
+    }
+
+    fn freeze_app<'a>(
+        &'a self,
+        app: &'a str,
+        frozen: bool,
+    ) -> BoxFuture<'a, Result<(), RobotError>> {
+        Box::pin(async move {
+            if frozen {
+                self.client.freeze_app(app).await
+            } else {
+                self.client.thaw_app(app).await
+            }
+            .map_err(wrap("freeze_app"))
+        })
+    }
+
+    fn start_recording<'a>(
+        &'a self,
+        name: &'a str,
+        topics: &'a [String],
+    ) -> BoxFuture<'a, Result<Option<String>, RobotError>> {
+        Box::pin(async move {
+            let p = self.client.start_recording(name, topics).await;
+            p.map(bag_path).map_err(wrap("start_recording"))
+        })
+    }
+
+    fn stop_recording<'a>(
+        &'a self,
+        name: &'a str,
+    ) -> BoxFuture<'a, Result<Option<String>, RobotError>> {
+        Box::pin(async move {
+            let p = self.client.stop_recording(name).await;
+            p.map(bag_path).map_err(wrap("stop_recording"))
+        })
     }
 
     fn events(&self) -> broadcast::Receiver<RobotEvent> {

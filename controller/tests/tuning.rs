@@ -11,7 +11,7 @@ use std::time::Duration;
 
 use configbot_controller::metrics::Metrics;
 use configbot_controller::store::Store;
-use configbot_controller::tuning::machine::State;
+use configbot_controller::tuning::machine::{Remedy, State};
 use configbot_controller::tuning::robot::Robot;
 use configbot_controller::tuning::runner::{self, RunnerCtx};
 use configbot_controller::tuning::sim::{SimInput, SimNode, SimRobot};
@@ -456,21 +456,54 @@ async fn familiar_context_reapplies_library_config_without_trials() {
     );
 }
 
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn remediation_stops_the_non_core_app_and_is_undone_when_tuning_is_allowed() {
+/// A spec the task executive forbids tuning for (annotation), with this
+/// `remediation` section; its runner is running and has reached
+/// Remediating with ten windows measured.
+async fn remediating(remediation: Value) -> (Fixture, tokio::task::JoinHandle<()>) {
     let mut s = spec(35.0, 4, json!({}));
     s["metadata"]["annotations"] = json!({"configbot.dev/tuning-allowed": "false"});
+    s["spec"]["remediation"] = remediation;
     let f = Fixture::new(s);
     let h = f.spawn();
     f.until("remediation", |r| {
         matches!(r.state, State::Remediating { .. }) && r.monitor.windows >= 10
     })
     .await;
+    (f, h)
+}
+
+impl Fixture {
+    /// The task executive allows tuning again; waits for the relearned run.
+    async fn allow_tuning(&self) {
+        let mut obj = self
+            .store
+            .get(Kind::PerformanceSpec, "default", "nav-spec")
+            .unwrap()
+            .unwrap();
+        obj["metadata"]["annotations"] = json!({});
+        obj["metadata"]
+            .as_object_mut()
+            .unwrap()
+            .remove("resourceVersion");
+        self.store.put(Kind::PerformanceSpec, obj, false).unwrap();
+        self.until("relearning after the undo", |r| {
+            matches!(r.state, State::Monitor { .. })
+        })
+        .await;
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn remediation_stops_the_non_core_app_and_is_undone_when_tuning_is_allowed() {
+    let (f, h) = remediating(json!({})).await;
     let run = f.run();
     assert_eq!(
         run.state,
         State::Remediating {
-            apps: vec!["det".into()]
+            remedy: Remedy {
+                apps: vec!["det".into()],
+                ..Remedy::default()
+            }
         }
     );
     let g = f.sim.graph().await.unwrap();
@@ -488,22 +521,7 @@ async fn remediation_stops_the_non_core_app_and_is_undone_when_tuning_is_allowed
             .iter()
             .any(|(r, m)| r == "Remediated" && m.contains("det"))
     );
-    // The task executive allows tuning again: undo, then relearn.
-    let mut obj = f
-        .store
-        .get(Kind::PerformanceSpec, "default", "nav-spec")
-        .unwrap()
-        .unwrap();
-    obj["metadata"]["annotations"] = json!({});
-    obj["metadata"]
-        .as_object_mut()
-        .unwrap()
-        .remove("resourceVersion");
-    f.store.put(Kind::PerformanceSpec, obj, false).unwrap();
-    f.until("relearning after the undo", |r| {
-        matches!(r.state, State::Monitor { .. })
-    })
-    .await;
+    f.allow_tuning().await;
     h.abort();
     assert!(f.events().iter().any(|(r, _)| r == "RemediationUndone"));
     let g = f.sim.graph().await.unwrap();
@@ -512,6 +530,41 @@ async fn remediation_stops_the_non_core_app_and_is_undone_when_tuning_is_allowed
         f.metrics
             .render()
             .contains("configbot_tuning_remediations_total")
+    );
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn remediation_can_freeze_the_non_core_app_and_record_its_inputs() {
+    let (f, h) = remediating(json!({"action": "FreezeNonCore", "recordRosbag": true})).await;
+    let run = f.run();
+    assert!(
+        run.monitor.satisfaction().unwrap() >= 0.99,
+        "the core constraint is restored"
+    );
+    assert_eq!(f.sim.frozen(), ["det".to_string()].into());
+    let g = f.sim.graph().await.unwrap();
+    assert!(g.nodes.contains_key("/detector"), "frozen, not stopped");
+    assert_eq!(
+        f.sim.recordings(),
+        [("default-nav-spec".to_string(), vec!["/image".to_string()])].into()
+    );
+    let events = f.events();
+    assert!(
+        events.iter().any(|(r, m)| r == "RecordingInputs"
+            && m.contains("/image")
+            && m.contains("sim://default-nav-spec.bag")),
+        "{events:#?}"
+    );
+    f.allow_tuning().await;
+    h.abort();
+    assert!(f.sim.frozen().is_empty(), "thawed");
+    assert!(f.sim.recordings().is_empty(), "recording stopped");
+    assert!(
+        f.events().iter().any(|(r, m)| r == "RemediationUndone"
+            && m.contains("thawed det")
+            && m.contains("recorded to sim://default-nav-spec.bag")),
+        "{:#?}",
+        f.events()
     );
 }
 

@@ -1,7 +1,8 @@
 //! Issue 6, "Done when" 5: with tuning not allowed (`spec.tuning.allowed:
 //! false`) and a violated core constraint with no known config, the loop
 //! stops the non-core app (its processes leave their cgroups and stay gone)
-//! and the core constraint holds again.
+//! and the core constraint holds again; or freezes it and records its inputs
+//! with rosbag; allowing tuning again undoes either.
 
 mod common;
 
@@ -9,12 +10,15 @@ use std::time::{Duration, Instant};
 
 use common::{HOG_STACK_NODES, HOGS, Robot, hog_stack, node_pids, phase};
 
+/// The scheduler state letter of `pid` (`T` stopped, `Z` zombie).
+fn state(pid: u32) -> Option<char> {
+    let s = std::fs::read_to_string(format!("/proc/{pid}/stat")).ok()?;
+    s.rsplit_once(')')?.1.trim_start().chars().next()
+}
+
 /// Whether `pid` is a live (not zombie) process.
 fn running(pid: u32) -> bool {
-    std::fs::read_to_string(format!("/proc/{pid}/stat"))
-        .ok()
-        .and_then(|s| s.rsplit_once(')').map(|(_, r)| r.trim_start().to_string()))
-        .is_some_and(|r| !r.starts_with('Z') && !r.starts_with('X'))
+    state(pid).is_some_and(|c| !matches!(c, 'Z' | 'X'))
 }
 
 #[test]
@@ -93,15 +97,21 @@ fn remediation_stops_the_non_core_app() {
     );
 }
 
-/// The task executive's way: the annotation `configbot.dev/tuning-allowed:
-/// "false"` pauses tuning (remediation stops the hogs); removing it undoes
-/// the remediation (an event, the hogs run again) and queues the relearning.
+/// The task executive's way, freezing: with the annotation
+/// `configbot.dev/tuning-allowed: "false"` and `remediation: {action:
+/// FreezeNonCore, recordRosbag: true}` the hogs are frozen (SIGSTOP: same
+/// pids, stopped, still in their cgroups) and rosbag records their input
+/// `/scan`; removing the annotation thaws them, closes the bag (it holds the
+/// messages) and queues the relearning.
 #[test]
-fn remediation_is_undone_when_the_annotation_allows_tuning() {
+fn a_frozen_remediation_records_the_inputs_and_thaws_when_the_annotation_allows_tuning() {
     let robot = Robot::start();
     let t0 = Instant::now();
     let name = "paused";
-    let yaml = hog_stack(name, 6, 36.0);
+    let yaml = hog_stack(name, 6, 36.0).replace(
+        "  monitoring: {",
+        "  remediation: {action: FreezeNonCore, recordRosbag: true}\n  monitoring: {",
+    );
     let (stack, spec) = yaml.split_once("---\n").expect("two documents");
     let paused = spec.replace(
         &format!("metadata:\n  name: {name}\n"),
@@ -112,40 +122,73 @@ fn remediation_is_undone_when_the_annotation_allows_tuning() {
     assert_ne!(paused, spec);
     robot.apply(stack);
     robot.wait_nodes(&HOG_STACK_NODES);
+    let hog_pids: Vec<u32> = HOGS
+        .iter()
+        .flat_map(|h| node_pids(&robot.root, h))
+        .collect();
     robot.apply(&paused);
-    robot.wait_event(name, "Remediated", Duration::from_secs(30), |_| true);
+    let (ev, _) = robot.wait_event(name, "Remediated", Duration::from_secs(30), |_| true);
+    let msg = ev["message"].as_str().unwrap_or("").to_string();
+    assert!(msg.contains("freezing hogs"), "{msg}");
+    let (rec, _) = robot.wait_event(name, "RecordingInputs", Duration::from_secs(30), |_| true);
+    let rec = rec["message"].as_str().unwrap_or("").to_string();
+    assert!(
+        rec.starts_with("recording /scan (the inputs of hogs) to "),
+        "{rec}"
+    );
+    let bag = rec.rsplit_once(" to ").map(|(_, p)| p.to_string()).unwrap();
+    // Frozen, not stopped: the same processes, all in state T.
     let deadline = Instant::now() + Duration::from_secs(15);
-    while HOGS.iter().any(|h| !node_pids(&robot.root, h).is_empty()) {
+    while !hog_pids.iter().all(|p| state(*p) == Some('T')) {
         assert!(
             Instant::now() < deadline,
-            "hogs still running\n{}",
+            "hogs not frozen\n{}",
             robot.event_log(name)
         );
         std::thread::sleep(Duration::from_millis(100));
     }
+    let now: Vec<u32> = HOGS
+        .iter()
+        .flat_map(|h| node_pids(&robot.root, h))
+        .collect();
+    assert_eq!(now, hog_pids, "the frozen hogs keep their processes");
     robot.wait_for("pspec", name, Duration::from_secs(10), "Remediating", |o| {
         phase(o) == "Remediating"
     });
 
     // The task executive allows tuning again.
     robot.apply(spec);
-    let (ev, _) = robot.wait_event(name, "RemediationUndone", Duration::from_secs(20), |_| true);
+    let (ev, _) = robot.wait_event(name, "RemediationUndone", Duration::from_secs(30), |_| true);
+    let undone = ev["message"].as_str().unwrap_or("").to_string();
+    assert!(
+        undone.contains("thawed hogs") && undone.contains(&format!("inputs recorded to {bag}")),
+        "{undone}"
+    );
     let deadline = Instant::now() + Duration::from_secs(20);
-    while HOGS.iter().any(|h| node_pids(&robot.root, h).is_empty()) {
+    while hog_pids.iter().any(|p| state(*p) == Some('T')) {
         assert!(
             Instant::now() < deadline,
-            "hogs not restarted\n{}",
+            "hogs not thawed\n{}",
             robot.event_log(name)
         );
         std::thread::sleep(Duration::from_millis(100));
     }
+    let info = std::process::Command::new("/usr/bin/rosbag")
+        .args(["info", "--yaml", "--key", "messages", &bag])
+        .env("ROS_HOME", robot.dir.path())
+        .output()
+        .expect("rosbag info");
+    let messages: u64 = String::from_utf8_lossy(&info.stdout)
+        .trim()
+        .parse()
+        .unwrap_or(0);
+    assert!(messages > 0, "the bag holds /scan messages: {info:?}");
     // ... and the run relearns.
     robot.wait_for("pspec", name, Duration::from_secs(20), "relearning", |o| {
         matches!(phase(o), "Baseline" | "Tuning")
     });
     eprintln!(
-        "e2e remediation undo: {}; {:.0} s",
-        ev["message"].as_str().unwrap_or(""),
+        "e2e frozen remediation undo: {undone}; bag of {messages} messages; {:.0} s",
         t0.elapsed().as_secs_f64()
     );
 }

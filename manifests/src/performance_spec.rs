@@ -299,7 +299,10 @@ impl Default for Monitoring {
 pub struct Remediation {
     #[serde(default)]
     pub action: RemediationAction,
-    /// Record a rosbag of the inputs for later relearning when `rosbag` is installed.
+    /// While remediating, record a rosbag of the paused apps' inputs (every
+    /// topic they subscribe to) for relearning later, where `rosbag` is
+    /// installed on the robot. The bag is written beside the agent's state
+    /// (`bags/<namespace>-<spec>-<ms>.bag`); events name its path.
     #[serde(default)]
     pub record_rosbag: bool,
 }
@@ -320,7 +323,9 @@ pub enum RemediationAction {
     /// Stop non-core apps and give their CPU to core nodes.
     #[default]
     StopNonCore,
-    /// Freeze non-core apps (SIGSTOP) instead of stopping them.
+    /// Freeze non-core apps (SIGSTOP to every process in their cgroups)
+    /// instead of stopping them: they keep their memory and ROS connections
+    /// and go on where they were when thawed (SIGCONT).
     FreezeNonCore,
 }
 

@@ -89,6 +89,9 @@ pub struct NodeStatus {
     pub stats: CpuStats,
     pub restarts: u32,
     pub stopped: bool,
+    /// Frozen (SIGSTOP) by an app freeze.
+    #[serde(default)]
+    pub frozen: bool,
 }
 
 impl Agent {
@@ -492,6 +495,36 @@ impl Agent {
         Ok(())
     }
 
+    /// Freezes every node of `app`: SIGSTOP to each process in its cgroups.
+    /// The processes keep their memory, sockets and ROS registrations but use
+    /// no CPU until [`Agent::thaw_app`] (or until they are stopped, which
+    /// thaws them first). The flag survives agent restarts.
+    pub fn freeze_app(&self, app: &str) -> Result<()> {
+        self.set_frozen(app, true)?;
+        self.emit(AgentEvent::AppFrozen {
+            app: app.to_owned(),
+        });
+        Ok(())
+    }
+
+    /// Thaws every node of `app` (SIGCONT to each process in its cgroups).
+    pub fn thaw_app(&self, app: &str) -> Result<()> {
+        self.set_frozen(app, false)?;
+        self.emit(AgentEvent::AppThawed {
+            app: app.to_owned(),
+        });
+        Ok(())
+    }
+
+    fn set_frozen(&self, app: &str, frozen: bool) -> Result<()> {
+        let sig = if frozen { libc::SIGSTOP } else { libc::SIGCONT };
+        for node in self.app_nodes(app)? {
+            self.update_node(&node, |p| p.frozen = frozen);
+            supervise::signal_cgroup(self, &node, sig);
+        }
+        Ok(())
+    }
+
     /// App names.
     pub fn apps(&self) -> Vec<String> {
         self.st()
@@ -585,6 +618,7 @@ impl Agent {
                 stats: rt.stats,
                 restarts: rt.persisted.restarts,
                 stopped: rt.persisted.stopped,
+                frozen: rt.persisted.frozen,
             })
             .collect()
     }

@@ -10,6 +10,9 @@
 //! - `GET  /v1/graph`              the ROS graph
 //! - `POST /v1/apps/{app}/stop`    graceful stop of an app
 //! - `POST /v1/apps/{app}/start`   start an app again
+//! - `POST /v1/apps/{app}/freeze`  SIGSTOP an app's processes (`/thaw`: SIGCONT)
+//! - `PUT  /v1/recordings/{name}`  `{"topics": [...]}`: start a rosbag recording → `{"path"}`
+//! - `DELETE /v1/recordings/{name}` stop it → `{"path"}` (null: none was running)
 //! - `GET  /v1/events`             NDJSON stream of [`RuntimeEvent`]s
 //! - `GET  /v1/status`             active process monitor, master URI, committed config
 //! - `GET  /metrics`               Prometheus text format
@@ -54,6 +57,7 @@ impl From<Error> for ApiError {
             Error::InvalidStack(_)
             | Error::InvalidConfig(_)
             | Error::InvalidMeasure(_)
+            | Error::InvalidRecording(_)
             | Error::Manifest { .. }
             | Error::Adaptor {
                 source: configbot_dataplane::DataPlaneError::InvalidRate(_),
@@ -99,6 +103,12 @@ pub fn router(rt: NodeRuntime, token: Option<String>) -> Router {
         .route("/v1/graph", get(graph))
         .route("/v1/apps/{app}/stop", post(stop_app))
         .route("/v1/apps/{app}/start", post(start_app))
+        .route("/v1/apps/{app}/freeze", post(freeze_app))
+        .route("/v1/apps/{app}/thaw", post(thaw_app))
+        .route(
+            "/v1/recordings/{name}",
+            put(start_recording).delete(stop_recording),
+        )
         .route("/v1/events", get(events))
         .route("/v1/status", get(status))
         .route("/metrics", get(metrics))
@@ -202,6 +212,53 @@ async fn start_app(
 ) -> Result<impl IntoResponse, ApiError> {
     rt.start_app(&app).await?;
     Ok(Json(json!({ "app": app, "started": true })))
+}
+
+async fn freeze_app(
+    State(rt): State<NodeRuntime>,
+    UrlPath(app): UrlPath<String>,
+) -> Result<impl IntoResponse, ApiError> {
+    rt.freeze_app(&app).await?;
+    Ok(Json(json!({ "app": app, "frozen": true })))
+}
+
+async fn thaw_app(
+    State(rt): State<NodeRuntime>,
+    UrlPath(app): UrlPath<String>,
+) -> Result<impl IntoResponse, ApiError> {
+    rt.thaw_app(&app).await?;
+    Ok(Json(json!({ "app": app, "frozen": false })))
+}
+
+/// Body of `PUT /v1/recordings/{name}`.
+#[derive(Debug, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RecordingRequest {
+    pub topics: Vec<String>,
+}
+
+/// Reply of the recording endpoints.
+#[derive(Debug, serde::Serialize, serde::Deserialize)]
+pub struct RecordingReply {
+    pub path: Option<std::path::PathBuf>,
+}
+
+async fn start_recording(
+    State(rt): State<NodeRuntime>,
+    UrlPath(name): UrlPath<String>,
+    body: Result<Json<RecordingRequest>, JsonRejection>,
+) -> Result<Json<RecordingReply>, ApiError> {
+    let Json(req) = body.map_err(|r| bad_json(&r))?;
+    let path = rt.start_recording(&name, &req.topics).await?;
+    Ok(Json(RecordingReply { path }))
+}
+
+async fn stop_recording(
+    State(rt): State<NodeRuntime>,
+    UrlPath(name): UrlPath<String>,
+) -> Result<Json<RecordingReply>, ApiError> {
+    let path = rt.stop_recording(&name).await?;
+    Ok(Json(RecordingReply { path }))
 }
 
 async fn status(State(rt): State<NodeRuntime>) -> impl IntoResponse {

@@ -1,8 +1,8 @@
 //! `AgentClient`: the controller's handle on a remote node runtime, with the
 //! same async methods as [`crate::runtime::NodeRuntime`] (set_stack, apply,
-//! measure, graph, inventory, stop_app, start_app, events), over the agent's
-//! HTTP API: a Unix socket (no token; the socket's mode is the access rule)
-//! or TCP with a bearer token. One HTTP/1 connection per call (hyper's
+//! measure, graph, inventory, stop/start/freeze/thaw of apps, rosbag
+//! recordings, events), over the agent's HTTP API: a Unix socket (no token;
+//! the socket's mode is the access rule) or TCP with a bearer token. One HTTP/1 connection per call (hyper's
 //! low-level client), so a blocking `measure` never holds up other calls.
 
 use std::path::PathBuf;
@@ -270,18 +270,50 @@ impl AgentClient {
 
     /// `POST /v1/apps/{app}/stop`.
     pub async fn stop_app(&self, app: &str) -> ClientResult<()> {
-        let path = format!("/v1/apps/{}/stop", path_segment(app));
+        self.app_action(app, "stop").await
+    }
+
+    /// `POST /v1/apps/{app}/start`.
+    pub async fn start_app(&self, app: &str) -> ClientResult<()> {
+        self.app_action(app, "start").await
+    }
+
+    /// `POST /v1/apps/{app}/freeze`.
+    pub async fn freeze_app(&self, app: &str) -> ClientResult<()> {
+        self.app_action(app, "freeze").await
+    }
+
+    /// `POST /v1/apps/{app}/thaw`.
+    pub async fn thaw_app(&self, app: &str) -> ClientResult<()> {
+        self.app_action(app, "thaw").await
+    }
+
+    async fn app_action(&self, app: &str, action: &str) -> ClientResult<()> {
+        let path = format!("/v1/apps/{}/{action}", path_segment(app));
         self.call::<serde_json::Value>(Method::POST, &path, None::<&()>)
             .await
             .map(|_| ())
     }
 
-    /// `POST /v1/apps/{app}/start`.
-    pub async fn start_app(&self, app: &str) -> ClientResult<()> {
-        let path = format!("/v1/apps/{}/start", path_segment(app));
-        self.call::<serde_json::Value>(Method::POST, &path, None::<&()>)
-            .await
-            .map(|_| ())
+    /// `PUT /v1/recordings/{name}`: the bag's path, `None` without rosbag.
+    pub async fn start_recording(
+        &self,
+        name: &str,
+        topics: &[String],
+    ) -> ClientResult<Option<std::path::PathBuf>> {
+        let path = format!("/v1/recordings/{}", path_segment(name));
+        let body = crate::api::RecordingRequest {
+            topics: topics.to_vec(),
+        };
+        let r: crate::api::RecordingReply = self.call(Method::PUT, &path, Some(&body)).await?;
+        Ok(r.path)
+    }
+
+    /// `DELETE /v1/recordings/{name}`: the finished bag's path.
+    pub async fn stop_recording(&self, name: &str) -> ClientResult<Option<std::path::PathBuf>> {
+        let path = format!("/v1/recordings/{}", path_segment(name));
+        let r: crate::api::RecordingReply = self.call(Method::DELETE, &path, None::<&()>).await?;
+        Ok(r.path)
     }
 
     /// `GET /v1/events`: returns once the agent has subscribed, so every

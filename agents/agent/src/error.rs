@@ -36,6 +36,8 @@ pub enum Error {
     InvalidConfig(String),
     #[error("invalid measure request: {0}")]
     InvalidMeasure(String),
+    #[error("invalid recording: {0}")]
+    InvalidRecording(String),
     #[error("{what} needs the ROS data plane, which is disabled")]
     NoDataPlane { what: String },
     #[error("adaptor on edge {topic} -> {subscriber}")]

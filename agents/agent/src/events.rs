@@ -37,6 +37,22 @@ pub enum AgentEvent {
     #[serde(rename_all = "camelCase")]
     AppStarted { app: String },
     #[serde(rename_all = "camelCase")]
+    AppFrozen { app: String },
+    #[serde(rename_all = "camelCase")]
+    AppThawed { app: String },
+    /// A rosbag recording started (runtime, see `runtime::record`).
+    #[serde(rename_all = "camelCase")]
+    RecordingStarted {
+        name: String,
+        path: std::path::PathBuf,
+        topics: Vec<String>,
+    },
+    #[serde(rename_all = "camelCase")]
+    RecordingStopped {
+        name: String,
+        path: std::path::PathBuf,
+    },
+    #[serde(rename_all = "camelCase")]
     ConfigApplied { nodes: Vec<NodeName> },
     #[serde(rename_all = "camelCase")]
     ConfigRejected { error: String },

@@ -10,13 +10,15 @@
 //!   moved into its cgroup, on every graph change and every second;
 //! - adaptor placement follows the stack's core/non-core apps, updated by
 //!   [`NodeRuntime::set_stack`];
-//! - `apply` (module `apply`) and `measure` (module `measure`).
+//! - `apply` (module `apply`) and `measure` (module `measure`);
+//! - rosbag recordings on request (module [`record`]).
 //!
 //! The controller calls the same methods on an embedded runtime and, over
 //! HTTP, on [`crate::client::AgentClient`].
 
 mod apply;
 mod measure;
+pub mod record;
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::PathBuf;
@@ -90,6 +92,7 @@ struct Inner {
     metered: Mutex<BTreeSet<String>>,
     registry: Registry,
     topic_rate: GaugeVec,
+    recordings: record::Recordings,
 }
 
 impl std::fmt::Debug for Inner {
@@ -239,6 +242,12 @@ impl NodeRuntime {
             .as_ref()
             .map_or_else(|| "none".to_owned(), |m| m.status().summary());
         let (events, _) = broadcast::channel(4096);
+        // Bags live beside the agent's state.
+        let bags = agent
+            .settings()
+            .state_file
+            .parent()
+            .map_or_else(|| PathBuf::from("bags"), |d| d.join("bags"));
         let rt = Self {
             inner: Arc::new(Inner {
                 agent,
@@ -253,6 +262,7 @@ impl NodeRuntime {
                 metered: Mutex::new(BTreeSet::new()),
                 registry,
                 topic_rate,
+                recordings: record::Recordings::new(bags),
             }),
         };
         let mut rx = rt.inner.agent.subscribe();
@@ -463,15 +473,56 @@ impl NodeRuntime {
         Ok(())
     }
 
+    /// Freezes every node of `app` (SIGSTOP), see [`Agent::freeze_app`].
+    pub async fn freeze_app(&self, app: &str) -> Result<()> {
+        self.inner.agent.freeze_app(app)
+    }
+
+    /// Thaws every node of `app` (SIGCONT).
+    pub async fn thaw_app(&self, app: &str) -> Result<()> {
+        self.inner.agent.thaw_app(app)
+    }
+
+    /// Starts a rosbag recording of `topics` named `name` (see [`record`]);
+    /// the bag's path, or `None` when rosbag is not installed or there is
+    /// nothing to record.
+    pub async fn start_recording(&self, name: &str, topics: &[String]) -> Result<Option<PathBuf>> {
+        let master = self.master_uri().ok_or_else(|| Error::NoDataPlane {
+            what: "a rosbag recording".into(),
+        })?;
+        let path = self.inner.recordings.start(name, topics, &master).await?;
+        if let Some(p) = &path {
+            self.emit(RuntimeEvent::Agent(AgentEvent::RecordingStarted {
+                name: name.to_owned(),
+                path: p.clone(),
+                topics: topics.to_vec(),
+            }));
+        }
+        Ok(path)
+    }
+
+    /// Stops the recording `name`; the finished bag's path, if one was running.
+    pub async fn stop_recording(&self, name: &str) -> Result<Option<PathBuf>> {
+        let path = self.inner.recordings.stop(name).await;
+        if let Some(p) = &path {
+            self.emit(RuntimeEvent::Agent(AgentEvent::RecordingStopped {
+                name: name.to_owned(),
+                path: p.clone(),
+            }));
+        }
+        Ok(path)
+    }
+
     /// Runtime events from now on.
     pub fn events(&self) -> broadcast::Receiver<RuntimeEvent> {
         self.inner.events.subscribe()
     }
 
-    /// Stops the glue tasks and the process monitor, then shuts the agent
-    /// down (processes keep running). The data plane stops when the last
+    /// Stops the recordings, the glue tasks and the process monitor, then
+    /// shuts the agent down (nodes keep running). The data plane stops when the last
     /// handle is dropped.
     pub async fn shutdown(&self) {
+        self.inner.recordings.stop_all().await;
         self.detach();
         self.inner.agent.shutdown().await;
     }

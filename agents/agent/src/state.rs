@@ -68,6 +68,10 @@ pub struct PersistedNode {
     pub restarts: u32,
     /// Stopped on request (app stop): do not start on agent restart.
     pub stopped: bool,
+    /// Frozen on request (app freeze, SIGSTOP): thawed by an app thaw, or
+    /// before the node is stopped.
+    #[serde(default)]
+    pub frozen: bool,
 }
 
 /// Reads the state file; a missing file is `None`.
@@ -202,6 +206,7 @@ mod tests {
                 main: Some((42, 7)),
                 restarts: 2,
                 stopped: true,
+                frozen: true,
             },
         );
         save(&path, &st).unwrap();

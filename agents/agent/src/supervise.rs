@@ -58,6 +58,30 @@ pub(crate) fn send_signal(pid: u32, sig: i32) -> bool {
     send_raw(i32::try_from(pid).unwrap_or(i32::MAX), sig)
 }
 
+/// Sends `sig` to every process in `node`'s cgroup, and again to any that
+/// joined meanwhile (a child forked before a SIGSTOP landed), until a pass
+/// finds none new. Returns the pids signalled.
+pub(crate) fn signal_cgroup(agent: &Agent, node: &NodeName, sig: i32) -> Vec<u32> {
+    let mut done = std::collections::BTreeSet::new();
+    for _ in 0..10 {
+        let fresh: Vec<u32> = agent
+            .backend()
+            .pids(node)
+            .unwrap_or_default()
+            .into_iter()
+            .filter(|p| !done.contains(p))
+            .collect();
+        if fresh.is_empty() {
+            break;
+        }
+        for pid in fresh {
+            send_signal(pid, sig);
+            done.insert(pid);
+        }
+    }
+    done.into_iter().collect()
+}
+
 fn send_raw(target: i32, sig: i32) -> bool {
     #[allow(unsafe_code)]
     // SAFETY: kill(2) takes plain integers and touches no memory of ours.

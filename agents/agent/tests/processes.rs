@@ -1,6 +1,6 @@
 //! Real processes in real v1 cgroups (root needed): run nodes start inside
 //! their cgroup, match nodes are adopted with all threads, restart policies,
-//! app stop/start, and the CPU limit Done-when through the agent.
+//! app stop/start/freeze/thaw, and the CPU limit Done-when through the agent.
 
 mod common;
 
@@ -228,6 +228,84 @@ async fn app_stop_is_graceful_and_start_brings_it_back() {
     agent.start_app("nav").unwrap();
     wait_running(&agent, &polite, T, "nav back").await;
     assert!(agent.stop_app("ghost").await.is_err());
+}
+
+/// The scheduler state letter of `pid` (`T`: stopped by a signal).
+fn proc_state(pid: u32) -> Option<char> {
+    let s = std::fs::read_to_string(format!("/proc/{pid}/stat")).ok()?;
+    s.rsplit_once(')')?.1.trim_start().chars().next()
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_frozen_app_uses_no_cpu_until_thawed_and_still_stops_gracefully() {
+    let mut env = Env::new();
+    let stack = stack_json(
+        r#"{"apps":[{"name":"hogs","nodes":[
+            {"name":"/hog","run":{"command":"/bin/sh","args":["-c","trap 'echo got-int; exit 0' INT; while :; do :; done"]}},
+            {"name":"/forker","run":{"command":"/bin/sh","args":["-c","while :; do sleep 0.01; done"]}}]},
+            {"name":"nav","nodes":[{"name":"/nav","run":{"command":"/bin/sleep","args":["120"]}}]}]}"#,
+    );
+    let mut settings = env.settings();
+    settings.stop_timeout = Duration::from_secs(5);
+    let agent = env.start_with(stack, settings).await;
+    let (hog, forker, nav) = (node("/hog"), node("/forker"), node("/nav"));
+    for n in [&hog, &forker, &nav] {
+        wait_running(&agent, n, T, "node running").await;
+    }
+    let mut events = agent.subscribe();
+    agent.freeze_app("hogs").unwrap();
+    wait_event(
+        &mut events,
+        T,
+        |e| matches!(e, AgentEvent::AppFrozen { app } if app == "hogs"),
+    )
+    .await;
+    // Every process of the app, the forker's children included, is stopped.
+    let stopped = |n: &configbot_cgroups::NodeName| {
+        let pids = agent.backend().pids(n).unwrap();
+        !pids.is_empty() && pids.iter().all(|p| proc_state(*p) == Some('T'))
+    };
+    wait_until(T, "hogs stopped", || stopped(&hog) && stopped(&forker)).await;
+    let frozen_use = measure_cpus(agent.backend(), &hog, Duration::from_secs(1)).await;
+    eprintln!("frozen busy node: {frozen_use:.4} cpus");
+    assert!(frozen_use < 0.01, "a frozen node used {frozen_use} CPUs");
+    let nav_pid = agent.backend().pids(&nav).unwrap()[0];
+    assert_ne!(proc_state(nav_pid), Some('T'), "other app untouched");
+    assert!(
+        agent
+            .inventory()
+            .iter()
+            .all(|s| s.frozen == (s.app == "hogs"))
+    );
+
+    agent.thaw_app("hogs").unwrap();
+    wait_until(T, "hogs running", || {
+        agent
+            .backend()
+            .pids(&hog)
+            .unwrap()
+            .iter()
+            .all(|p| proc_state(*p) != Some('T'))
+    })
+    .await;
+    let thawed_use = measure_cpus(agent.backend(), &hog, Duration::from_secs(2)).await;
+    eprintln!("thawed busy node: {thawed_use:.3} cpus");
+    // ~1 CPU on an idle host (see busy_node_measures_its_limit_then_about_one_cpu).
+    assert!(thawed_use >= 0.4, "thawed node used {thawed_use} CPUs");
+
+    // Stopping a frozen app is still graceful: it is thawed for its SIGINT.
+    agent.freeze_app("hogs").unwrap();
+    wait_until(T, "hogs stopped again", || stopped(&hog)).await;
+    // (Without the thaw, SIGINT and SIGTERM stay pending and SIGKILL ends it
+    // without running the trap.)
+    agent.stop_app("hogs").await.unwrap();
+    let log = std::fs::read_to_string(agent.log_path(&hog)).unwrap();
+    assert!(
+        log.contains("got-int"),
+        "SIGINT reached the frozen node: {log:?}"
+    );
+    assert!(agent.inventory().iter().all(|s| !s.frozen));
+    assert!(agent.freeze_app("ghost").is_err());
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

@@ -562,3 +562,89 @@ async fn client_over_tcp_needs_the_token() {
     );
     server.abort();
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_rosbag_recording_over_the_api_holds_the_topics_messages() {
+    let Some((env, rt)) = RtEnv::start_with_ros(None).await else {
+        return;
+    };
+    let sock = env.path("agent.sock");
+    let listener = configbot_agent::api::bind_unix(&sock).unwrap();
+    let server = tokio::spawn(configbot_agent::api::serve_unix(rt.clone(), listener));
+    let client = configbot_agent::client::AgentClient::unix(&sock);
+    let stack = robot_stack(&stack_yaml(&env.rospy_core_app(
+        "cam",
+        &[("/camera", "talker.py", &["camera", "/image", "20"])],
+    )));
+    client.set_stack(&stack).await.unwrap();
+    let subscribers = |rt: &configbot_agent::NodeRuntime| {
+        let g = rt.data_plane().map(|d| d.graph()).unwrap_or_default();
+        g.topics
+            .get("/image")
+            .map(|t| (t.publishers.len(), t.subscribers.clone()))
+            .unwrap_or_default()
+    };
+    eventually("/image published", T, || subscribers(&rt).0 == 1).await;
+    let mut events = client.events().await.unwrap();
+
+    let image = vec!["/image".to_string()];
+    let path = client
+        .start_recording("remedy-1", &image)
+        .await
+        .unwrap()
+        .expect("rosbag is installed with ros-core");
+    assert!(path.starts_with(env.path("bags")), "{path:?}");
+    assert_eq!(
+        client.start_recording("remedy-1", &image).await.unwrap(),
+        Some(path.clone()),
+        "one recording per name"
+    );
+    let err = client.start_recording("../x", &image).await.unwrap_err();
+    assert!(err.to_string().contains("400"), "{err}");
+    // rosbag's recorder subscribes like any node (`/record_…`), then records.
+    eventually("rosbag subscribed to /image", T, || {
+        subscribers(&rt).1.iter().any(|s| s.starts_with("/record"))
+    })
+    .await;
+    tokio::time::sleep(Duration::from_secs(3)).await;
+    let stopped = client.stop_recording("remedy-1").await.unwrap();
+    assert_eq!(stopped, Some(path.clone()));
+    assert_eq!(client.stop_recording("remedy-1").await.unwrap(), None);
+
+    let info = env
+        .ros_command("/usr/bin/rosbag")
+        .args(["info", "--yaml", "--key", "messages"])
+        .arg(&path)
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&info.stdout);
+    let messages: u64 = text.trim().parse().unwrap_or(0);
+    eprintln!(
+        "bag {}: {messages} messages in about 3 s of a 20 Hz topic",
+        path.display()
+    );
+    assert!(messages >= 20, "{info:?}");
+    eventually("rosbag's node unregistered", T, || {
+        !subscribers(&rt).1.iter().any(|s| s.starts_with("/record"))
+    })
+    .await;
+    let mut seen = (false, false);
+    while seen != (true, true) {
+        let ev = tokio::time::timeout(T, events.recv())
+            .await
+            .expect("no recording events")
+            .unwrap();
+        match ev {
+            RuntimeEvent::Agent(AgentEvent::RecordingStarted { name, topics, .. }) => {
+                assert_eq!((name.as_str(), topics), ("remedy-1", image.clone()));
+                seen.0 = true;
+            }
+            RuntimeEvent::Agent(AgentEvent::RecordingStopped { path: p, .. }) => {
+                assert_eq!(p, path);
+                seen.1 = true;
+            }
+            _ => {}
+        }
+    }
+    server.abort();
+}

@@ -4,8 +4,9 @@
 //! clearly infeasible trial as a censored observation) → Verify the best
 //! (drain, apply, settle, measure; a failing best trial is backed off first)
 //! or apply the safest (Unsat) → Monitor; a familiar context re-applies its
-//! library config and verifies it; Remediating stops non-core apps when tuning
-//! is not allowed and a constraint is violated with no known config.
+//! library config and verifies it; Remediating stops or freezes non-core apps
+//! (and records their inputs) when tuning is not allowed and a constraint is
+//! violated with no known config.
 //!
 //! [`effect`] says what IO the current state needs (so a resumed run simply
 //! redoes the effect of its persisted state); [`step`] consumes that IO's
@@ -160,18 +161,41 @@ pub enum State {
         satisfied: bool,
         config: ResourceConfig,
     },
-    RemediateStop {
-        apps: Vec<String>,
+    /// Pause the non-core apps (and start recording their inputs).
+    RemediatePause {
+        remedy: Remedy,
     },
+    /// Lift every limit: the core nodes get the paused apps' CPU.
     RemediateApply {
-        apps: Vec<String>,
+        remedy: Remedy,
     },
     Remediating {
-        apps: Vec<String>,
+        remedy: Remedy,
     },
+    /// Resume the paused apps (and stop the recording).
     RemediateUndo {
-        apps: Vec<String>,
+        remedy: Remedy,
     },
+}
+
+/// What a remediation did to the non-core apps, kept until it is undone.
+#[derive(Debug, Clone, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Remedy {
+    /// The paused apps.
+    pub apps: Vec<String>,
+    /// Frozen (SIGSTOP) rather than stopped.
+    #[serde(default)]
+    pub freeze: bool,
+    /// Record a rosbag of the paused apps' inputs while they are paused.
+    #[serde(default)]
+    pub record: bool,
+}
+
+/// A rosbag recording of the paused apps' inputs, as the robot reports it.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Recording {
+    pub path: String,
+    pub topics: Vec<String>,
 }
 
 /// One measured config of the run.
@@ -220,18 +244,18 @@ pub struct Run {
 
 impl Run {
     /// The run that follows `old` when the spec changes: a fresh run from the
-    /// config on the robot, except that apps a remediation stopped are started
-    /// again first; the new run knows nothing of them and would leave them
-    /// stopped for good.
+    /// config on the robot, except that apps a remediation paused are resumed
+    /// first; the new run knows nothing of them and would leave them paused
+    /// for good.
     pub fn after_spec_change(old: Run, generation: i64) -> Run {
         let mut r = Run::new(generation, Trigger::SpecChanged);
         r.current = old.current;
-        if let State::RemediateStop { apps }
-        | State::RemediateApply { apps }
-        | State::Remediating { apps }
-        | State::RemediateUndo { apps } = old.state
+        if let State::RemediatePause { remedy }
+        | State::RemediateApply { remedy }
+        | State::Remediating { remedy }
+        | State::RemediateUndo { remedy } = old.state
         {
-            r.state = State::RemediateUndo { apps };
+            r.state = State::RemediateUndo { remedy };
         }
         r
     }
@@ -301,7 +325,7 @@ impl Run {
             State::Monitor {
                 satisfied: true, ..
             } => "Monitoring",
-            State::RemediateStop { .. }
+            State::RemediatePause { .. }
             | State::RemediateApply { .. }
             | State::Remediating { .. }
             | State::RemediateUndo { .. } => "Remediating",
@@ -317,8 +341,11 @@ pub enum Effect {
     Apply(ResourceConfig),
     Sleep(Duration),
     Measure(MeasureRequest),
-    StopApps(Vec<String>),
-    StartApps(Vec<String>),
+    /// Stop or freeze the remedy's apps; start recording their inputs first
+    /// when it records.
+    PauseApps(Remedy),
+    /// Start or thaw them again; stop the recording.
+    ResumeApps(Remedy),
 }
 
 /// The result of an effect (or an outside trigger).
@@ -332,8 +359,10 @@ pub enum Input {
     Applied,
     Slept,
     Measured(MeasureReport),
-    AppsStopped,
-    AppsStarted,
+    /// The apps are paused; the recording of their inputs, if one started.
+    AppsPaused(Option<Recording>),
+    /// The apps run again; the finished recording, if there was one.
+    AppsResumed(Option<Recording>),
     Trigger(Trigger),
 }
 
@@ -402,9 +431,9 @@ pub fn effect(run: &Run, env: &Env<'_>) -> Effect {
         }
         State::Verify { .. } => probe(env.verify_ms()),
         State::Monitor { .. } | State::Remediating { .. } => probe(env.monitor_ms()),
-        State::RemediateStop { apps } => Effect::StopApps(apps.clone()),
+        State::RemediatePause { remedy } => Effect::PauseApps(remedy.clone()),
         State::RemediateApply { .. } => Effect::Apply(ResourceConfig::default()),
-        State::RemediateUndo { apps } => Effect::StartApps(apps.clone()),
+        State::RemediateUndo { remedy } => Effect::ResumeApps(remedy.clone()),
     }
 }
 
@@ -658,27 +687,52 @@ pub fn step(mut run: Run, input: Input, env: &Env<'_>) -> (Run, Vec<Output>) {
                 _ => State::Monitor { satisfied, config },
             }
         }
-        (State::RemediateStop { apps }, Input::AppsStopped) => State::RemediateApply { apps },
-        (State::RemediateApply { apps }, Input::Applied) => {
-            run.monitor = ConstraintMonitor::default();
-            State::Remediating { apps }
+        (State::RemediatePause { remedy }, Input::AppsPaused(rec)) => {
+            match rec {
+                Some(r) => out.push(normal(
+                    "RecordingInputs",
+                    format!(
+                        "recording {} (the inputs of {}) to {}",
+                        r.topics.join(", "),
+                        list_or_none(&remedy.apps),
+                        r.path
+                    ),
+                )),
+                None if remedy.record => out.push(warning(
+                    "NotRecording",
+                    format!(
+                        "no rosbag of the inputs of {}: rosbag is not installed on the robot or they subscribe to nothing",
+                        list_or_none(&remedy.apps)
+                    ),
+                )),
+                None => {}
+            }
+            State::RemediateApply { remedy }
         }
-        (State::Remediating { apps }, Input::Measured(r)) => {
+        (State::RemediateApply { remedy }, Input::Applied) => {
+            run.monitor = ConstraintMonitor::default();
+            State::Remediating { remedy }
+        }
+        (State::Remediating { remedy }, Input::Measured(r)) => {
             let ok = measure::windows_ok(&defs, &r);
             run.monitor
                 .observe(&ok, r.sub_window_ms as f64 / 1000.0, f64::INFINITY);
             if env.tuning_allowed {
-                State::RemediateUndo { apps }
+                State::RemediateUndo { remedy }
             } else {
-                State::Remediating { apps }
+                State::Remediating { remedy }
             }
         }
-        (State::RemediateUndo { apps }, Input::AppsStarted) => {
+        (State::RemediateUndo { remedy }, Input::AppsResumed(rec)) => {
+            let saved = rec.map_or(String::new(), |r| {
+                format!("; inputs recorded to {}", r.path)
+            });
             out.push(normal(
                 "RemediationUndone",
                 format!(
-                    "tuning allowed again: restarted {}; relearning",
-                    list_or_none(&apps)
+                    "tuning allowed again: {} {}{saved}; relearning",
+                    if remedy.freeze { "thawed" } else { "restarted" },
+                    list_or_none(&remedy.apps)
                 ),
             ));
             State::Observe {

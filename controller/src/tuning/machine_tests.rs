@@ -3,10 +3,11 @@
 
 use configbot_agent::measure::{MeasureReport, Probe, ProbeSeries};
 use configbot_dataplane::{Graph, NodeInfo, TopicInfo};
+use configbot_manifests::performance_spec::RemediationAction;
 use configbot_manifests::{PerformanceSpec, RobotStack};
 
 use super::*;
-use crate::tuning::{knobs, search};
+use crate::tuning::{knobs, outcome, search};
 
 fn stack() -> RobotStack {
     let n = |name: &str| serde_json::json!({"name": name, "run": {"command": "x"}});
@@ -105,6 +106,14 @@ fn stale() -> Box<ConfigProfile> {
     p
 }
 
+/// A remediation that stopped `app` (no freeze, no recording).
+fn paused(app: &str) -> Remedy {
+    Remedy {
+        apps: vec![app.into()],
+        ..Remedy::default()
+    }
+}
+
 fn with(state: State) -> Run {
     let mut r = Run::new(1, Trigger::SpecChanged);
     r.state = state;
@@ -125,7 +134,7 @@ fn name(s: &State) -> &'static str {
         State::Verify { .. } => "Verify",
         State::UnsatApply { .. } => "UnsatApply",
         State::Monitor { .. } => "Monitor",
-        State::RemediateStop { .. } => "RemediateStop",
+        State::RemediatePause { .. } => "RemediatePause",
         State::RemediateApply { .. } => "RemediateApply",
         State::Remediating { .. } => "Remediating",
         State::RemediateUndo { .. } => "RemediateUndo",
@@ -262,7 +271,7 @@ fn transition_table() {
             report(&BAD, 5.0),
             false,
             false,
-            "RemediateStop",
+            "RemediatePause",
             vec!["Baseline", "Remediated"],
         ),
         (
@@ -386,7 +395,7 @@ fn transition_table() {
             report(&[20.0; 10], 5.0),
             false,
             false,
-            "RemediateStop",
+            "RemediatePause",
             vec!["LibraryConfigFailed", "Remediated"],
         ),
         (
@@ -410,7 +419,7 @@ fn transition_table() {
             report(&BAD, 5.0),
             false,
             false,
-            "RemediateStop",
+            "RemediatePause",
             vec!["ConstraintViolated", "Remediated"],
         ),
         (
@@ -496,19 +505,50 @@ fn transition_table() {
         ),
         (
             "apps stopped: lift limits",
-            State::RemediateStop {
-                apps: vec!["det".into()],
+            State::RemediatePause {
+                remedy: paused("det"),
             },
-            Input::AppsStopped,
+            Input::AppsPaused(None),
             false,
             false,
             "RemediateApply",
             vec![],
         ),
         (
+            "apps paused, inputs recorded: say where",
+            State::RemediatePause {
+                remedy: Remedy {
+                    record: true,
+                    ..paused("det")
+                },
+            },
+            Input::AppsPaused(Some(Recording {
+                path: "/bags/x.bag".into(),
+                topics: vec!["/image".into()],
+            })),
+            false,
+            false,
+            "RemediateApply",
+            vec!["RecordingInputs"],
+        ),
+        (
+            "apps paused, recording asked for but none started: warn",
+            State::RemediatePause {
+                remedy: Remedy {
+                    record: true,
+                    ..paused("det")
+                },
+            },
+            Input::AppsPaused(None),
+            false,
+            false,
+            "RemediateApply",
+            vec!["NotRecording"],
+        ),
+        (
             "limits lifted: remediating",
             State::RemediateApply {
-                apps: vec!["det".into()],
+                remedy: paused("det"),
             },
             Input::Applied,
             false,
@@ -519,7 +559,7 @@ fn transition_table() {
         (
             "still not allowed",
             State::Remediating {
-                apps: vec!["det".into()],
+                remedy: paused("det"),
             },
             report(&OK, 5.0),
             false,
@@ -530,7 +570,7 @@ fn transition_table() {
         (
             "allowed again: undo",
             State::Remediating {
-                apps: vec!["det".into()],
+                remedy: paused("det"),
             },
             report(&OK, 5.0),
             false,
@@ -541,9 +581,9 @@ fn transition_table() {
         (
             "undone: relearn",
             State::RemediateUndo {
-                apps: vec!["det".into()],
+                remedy: paused("det"),
             },
-            Input::AppsStarted,
+            Input::AppsResumed(None),
             false,
             true,
             "Observe",
@@ -1010,12 +1050,12 @@ fn effects_and_resume_points() {
     assert_eq!(r.probes.len(), 3, "two metrics and the /image rate");
     assert_eq!(
         effect(
-            &with(State::RemediateStop {
-                apps: vec!["det".into()]
+            &with(State::RemediatePause {
+                remedy: paused("det"),
             }),
             &env
         ),
-        Effect::StopApps(vec!["det".into()])
+        Effect::PauseApps(paused("det"))
     );
     let resumed = with(trial(None)).resumed();
     assert_eq!(
@@ -1110,9 +1150,9 @@ fn safe_exploration_is_off_when_no_config_can_be_worse_than_the_baseline() {
 }
 
 #[test]
-fn a_spec_change_while_remediating_starts_the_stopped_apps_first() {
+fn a_spec_change_while_remediating_resumes_the_paused_apps_first() {
     let mut old = with(State::Remediating {
-        apps: vec!["obj".into()],
+        remedy: paused("obj"),
     });
     old.current = cfg();
     let new = Run::after_spec_change(old, 7);
@@ -1120,7 +1160,7 @@ fn a_spec_change_while_remediating_starts_the_stopped_apps_first() {
     assert_eq!(
         new.state,
         State::RemediateUndo {
-            apps: vec!["obj".into()]
+            remedy: paused("obj"),
         }
     );
     assert_eq!(new.current, cfg());
@@ -1139,4 +1179,78 @@ fn a_spec_change_while_remediating_starts_the_stopped_apps_first() {
             skip_library: false
         })
     );
+}
+
+#[test]
+fn remediation_pauses_the_running_non_core_apps_as_the_spec_says() {
+    let st = stack();
+    let mut sp = spec(2.0, 5).spec;
+    let remedy = |sp: &PerformanceSpecSpec, ctx: Option<&ProfileContext>| {
+        let env = Env {
+            stack: &st,
+            spec: sp,
+            namespace: "default",
+            spec_name: "p",
+            cpus: 2.0,
+            tuning_allowed: false,
+        };
+        let mut out = Vec::new();
+        let State::RemediatePause { remedy } = remediate(&env, ctx, &mut out) else {
+            panic!("not pausing")
+        };
+        let Output::Event { message, .. } = &out[0] else {
+            panic!()
+        };
+        (remedy, message.clone())
+    };
+    let (r, msg) = remedy(&sp, Some(&ctx()));
+    assert_eq!(r, paused("det"));
+    assert!(msg.contains("stopping det"), "{msg}");
+    sp.remediation.action = RemediationAction::FreezeNonCore;
+    sp.remediation.record_rosbag = true;
+    let (r, msg) = remedy(&sp, Some(&ctx()));
+    assert_eq!(
+        r,
+        Remedy {
+            apps: vec!["det".into()],
+            freeze: true,
+            record: true
+        }
+    );
+    assert!(msg.contains("freezing det"), "{msg}");
+    // A non-core app that is not running is left alone; nothing paused, nothing recorded.
+    let nav_only = ProfileContext {
+        apps: vec!["nav".into()],
+        ..ctx()
+    };
+    let (r, _) = remedy(&sp, Some(&nav_only));
+    assert_eq!(
+        r,
+        Remedy {
+            freeze: true,
+            ..Remedy::default()
+        }
+    );
+    sp.remediation.action = RemediationAction::None;
+    assert!(remedy(&sp, Some(&ctx())).0.apps.is_empty());
+}
+
+#[test]
+fn a_remediation_records_what_the_paused_apps_subscribe_to() {
+    let mut g = graph();
+    g.topics.insert(
+        "/cmd_vel".into(),
+        TopicInfo {
+            name: "/cmd_vel".into(),
+            msg_type: "m/M".into(),
+            publishers: ["/planner".to_string()].into(),
+            subscribers: ["/base".to_string(), "/camera".to_string()].into(),
+        },
+    );
+    assert_eq!(
+        outcome::paused_inputs(&stack(), &g, &["det".into()]),
+        vec!["/cmd_vel".to_string(), "/image".to_string()]
+    );
+    assert!(outcome::paused_inputs(&stack(), &g, &["nav".into()]).is_empty());
+    assert!(outcome::paused_inputs(&stack(), &g, &[]).is_empty());
 }

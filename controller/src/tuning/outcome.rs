@@ -1,17 +1,21 @@
 //! Pure helpers around a run's outcome: the optimizer problem built from the
 //! knobs and metrics, trials as optimizer observations and as library trials,
-//! verification of a candidate config, remediation, and the Unsat explanation (which constraint, the best value reached, what
-//! to relax).
+//! verification of a candidate config, remediation (which apps, how, which
+//! topics to record), and the Unsat explanation (which constraint, the best
+//! value reached, what to relax).
+
+use std::collections::BTreeSet;
 
 use configbot_agent::measure::MeasureReport;
+use configbot_dataplane::Graph;
 use configbot_manifests::performance_spec::RemediationAction;
-use configbot_manifests::{ProfileContext, ProfileTrial, ResourceConfig};
+use configbot_manifests::{ProfileContext, ProfileTrial, ResourceConfig, RobotStack};
 use configbot_optimizer::Observation;
 
 use super::knobs::KnobSpace;
 use super::library;
 use super::machine::{
-    BACKOFF_MIN, BACKOFF_STEP, Candidate, Env, Output, Run, SATISFIED, State, TrialRecord,
+    BACKOFF_MIN, BACKOFF_STEP, Candidate, Env, Output, Remedy, Run, SATISFIED, State, TrialRecord,
     drain_first, finish, normal, warning,
 };
 use super::measure::{self, MetricDef};
@@ -206,9 +210,11 @@ pub fn list_or_none(apps: &[String]) -> String {
     }
 }
 
-/// Enter remediation: stop the running non-core apps (per the spec's action).
+/// Enter remediation: stop or freeze the running non-core apps (per the
+/// spec's action), recording their inputs when the spec asks.
 pub fn remediate(env: &Env<'_>, ctx: Option<&ProfileContext>, out: &mut Vec<Output>) -> State {
-    let apps: Vec<String> = match env.spec.remediation.action {
+    let r = &env.spec.remediation;
+    let apps: Vec<String> = match r.action {
         RemediationAction::None => Vec::new(),
         RemediationAction::StopNonCore | RemediationAction::FreezeNonCore => env
             .stack
@@ -219,14 +225,38 @@ pub fn remediate(env: &Env<'_>, ctx: Option<&ProfileContext>, out: &mut Vec<Outp
             .map(|a| a.name.clone())
             .collect(),
     };
+    let remedy = Remedy {
+        freeze: r.action == RemediationAction::FreezeNonCore,
+        record: r.record_rosbag && !apps.is_empty(),
+        apps,
+    };
     out.push(warning(
         "Remediated",
         format!(
-            "a core constraint is violated, no known config holds and tuning is not allowed now: stopping {} and lifting CPU limits of core nodes; relearning is queued until tuning is allowed",
-            list_or_none(&apps)
+            "a core constraint is violated, no known config holds and tuning is not allowed now: {} {} and lifting CPU limits of core nodes; relearning is queued until tuning is allowed",
+            if remedy.freeze { "freezing" } else { "stopping" },
+            list_or_none(&remedy.apps)
         ),
     ));
-    State::RemediateStop { apps }
+    State::RemediatePause { remedy }
+}
+
+/// The topics a remediation records: every topic a node of the paused
+/// `apps` subscribes to, by the live graph (sorted, once each).
+pub fn paused_inputs(stack: &RobotStack, graph: &Graph, apps: &[String]) -> Vec<String> {
+    let nodes: BTreeSet<&str> = stack
+        .spec
+        .apps
+        .iter()
+        .filter(|a| apps.contains(&a.name))
+        .flat_map(|a| a.nodes.iter().map(|n| n.name.as_str()))
+        .collect();
+    graph
+        .topics
+        .iter()
+        .filter(|(_, t)| t.subscribers.iter().any(|s| nodes.contains(s.as_str())))
+        .map(|(name, _)| name.clone())
+        .collect()
 }
 
 /// A verification measured: monitor the candidate, or try the next one.

@@ -1,11 +1,13 @@
-//! The tuning loop's only view of a robot: the operations of the node runtime
-//! (CONTRACTS.md "Node runtime") — apply a config, measure a window, read the
-//! ROS graph, stop/start an app, and a stream of runtime events — plus the
-//! clock the loop waits on, injected so tests run on simulated time.
+//! The tuning loop's only view of a robot: the operations of the node
+//! runtime — apply a config, measure a window, read the ROS graph,
+//! stop/start/freeze an app, record a rosbag, and a stream of runtime events
+//! — plus the clock the loop waits on, injected so tests run on simulated
+//! time.
 //!
 //! The trait is dyn-compatible (boxed futures), so the server holds an
-//! `Arc<dyn Robot>`; the lead implements it for `NodeRuntime` (embedded) and
-//! `AgentClient` (remote), the tests for the simulated robot in [`super::sim`].
+//! `Arc<dyn Robot>`; `crate::robot` implements it for the embedded
+//! `NodeRuntime` and the remote `AgentClient`, [`super::sim`] for the
+//! simulated robot the tests drive.
 
 use std::future::Future;
 use std::pin::Pin;
@@ -23,7 +25,8 @@ pub type BoxFuture<'a, T> = Pin<Box<dyn Future<Output = T> + Send + 'a>>;
 #[derive(Debug, thiserror::Error)]
 #[error("robot {op}: {message}")]
 pub struct RobotError {
-    /// The operation: `apply`, `measure`, `graph`, `stop_app`, `start_app`.
+    /// The operation: `apply`, `measure`, `graph`, `stop_app`, `start_app`,
+    /// `freeze_app`, `start_recording`, ….
     pub op: &'static str,
     pub message: String,
     #[source]
@@ -92,6 +95,24 @@ pub trait Robot: Send + Sync {
     fn stop_app<'a>(&'a self, app: &'a str) -> BoxFuture<'a, Result<(), RobotError>>;
     /// Start every node of `app` again.
     fn start_app<'a>(&'a self, app: &'a str) -> BoxFuture<'a, Result<(), RobotError>>;
+    /// Freeze (SIGSTOP) every node of `app`, or thaw it (`frozen` false).
+    fn freeze_app<'a>(
+        &'a self,
+        app: &'a str,
+        frozen: bool,
+    ) -> BoxFuture<'a, Result<(), RobotError>>;
+    /// Start a rosbag recording of `topics` named `name`: the bag's path,
+    /// `None` when the robot cannot record (no rosbag) or `topics` is empty.
+    fn start_recording<'a>(
+        &'a self,
+        name: &'a str,
+        topics: &'a [String],
+    ) -> BoxFuture<'a, Result<Option<String>, RobotError>>;
+    /// Stop the recording `name`: the finished bag's path, if one was running.
+    fn stop_recording<'a>(
+        &'a self,
+        name: &'a str,
+    ) -> BoxFuture<'a, Result<Option<String>, RobotError>>;
     /// Runtime events from now on.
     fn events(&self) -> broadcast::Receiver<RobotEvent>;
     /// Run `stack` (`None`: no stack, stop every node). Robots whose stack

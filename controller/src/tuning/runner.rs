@@ -19,8 +19,9 @@ use tokio::sync::broadcast;
 use tokio::task::JoinHandle;
 
 use super::library::{self, CONTEXT_LABELS};
-use super::machine::{self, Effect, Env, Input, Output, Run, State};
+use super::machine::{self, Effect, Env, Input, Output, Recording, Run, State};
 use super::monitor::{self, Trigger};
+use super::outcome;
 use super::robot::{Clock, Robot, RobotError, RobotEvent};
 use crate::metrics::{Metrics, PHASES};
 use crate::store::{Store, StoreError};
@@ -429,20 +430,54 @@ impl Runner {
                     }
                 }
             }
-            Effect::StopApps(apps) => {
-                for a in &apps {
-                    robot.stop_app(a).await?;
+            Effect::PauseApps(remedy) => {
+                // Inputs first: a stopped app's nodes leave the graph.
+                let mut recording = None;
+                if remedy.record {
+                    let topics = outcome::paused_inputs(stack, &robot.graph().await?, &remedy.apps);
+                    if let Some(path) = robot
+                        .start_recording(&self.recording_name(), &topics)
+                        .await?
+                    {
+                        recording = Some(Recording { path, topics });
+                    }
+                }
+                for a in &remedy.apps {
+                    if remedy.freeze {
+                        robot.freeze_app(a, true).await?;
+                    } else {
+                        robot.stop_app(a).await?;
+                    }
                 }
                 let _ = env;
-                Input::AppsStopped
+                Input::AppsPaused(recording)
             }
-            Effect::StartApps(apps) => {
-                for a in &apps {
-                    robot.start_app(a).await?;
+            Effect::ResumeApps(remedy) => {
+                for a in &remedy.apps {
+                    if remedy.freeze {
+                        robot.freeze_app(a, false).await?;
+                    } else {
+                        robot.start_app(a).await?;
+                    }
                 }
-                Input::AppsStarted
+                let mut recording = None;
+                if remedy.record
+                    && let Some(path) = robot.stop_recording(&self.recording_name()).await?
+                {
+                    recording = Some(Recording {
+                        path,
+                        topics: Vec::new(),
+                    });
+                }
+                Input::AppsResumed(recording)
             }
         })
+    }
+
+    /// The rosbag recording of this spec's remediation (a DNS-1123 name plus
+    /// its namespace is a valid recording name).
+    fn recording_name(&self) -> String {
+        format!("{}-{}", self.ns, self.name)
     }
 
     /// Read the graph; a trigger when the context differs from the run's.

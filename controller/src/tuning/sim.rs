@@ -8,7 +8,8 @@
 //! `measure` answers at once with one value per sub-window (steady value ×
 //! (1 ± noise), the noise a hash of seed, simulated time and probe) and
 //! advances the simulated clock by the window; [`SimRobot`] is also the
-//! [`Clock`], so nothing waits in real time.
+//! [`Clock`], so nothing waits in real time. A frozen app stays in the graph
+//! but does no work; recordings are only remembered (topics and name).
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -60,6 +61,9 @@ pub struct SimRates {
 struct SimState {
     nodes: Vec<SimNode>,
     stopped: BTreeSet<String>,
+    frozen: BTreeSet<String>,
+    /// Recordings: name → topics, while running.
+    recording: BTreeMap<String, Vec<String>>,
     config: ResourceConfig,
     applied: Vec<(u64, ResourceConfig)>,
     measures: u64,
@@ -90,6 +94,8 @@ impl SimRobot {
             state: Mutex::new(SimState {
                 nodes,
                 stopped: BTreeSet::new(),
+                frozen: BTreeSet::new(),
+                recording: BTreeMap::new(),
                 config: ResourceConfig::default(),
                 applied: Vec::new(),
                 measures: 0,
@@ -161,7 +167,18 @@ impl SimRobot {
     /// Steady state under the current config.
     pub fn rates(&self) -> SimRates {
         let s = self.lock();
-        model(&s.nodes, &s.stopped, &s.config, self.cpus)
+        let idle: BTreeSet<String> = s.stopped.union(&s.frozen).cloned().collect();
+        model(&s.nodes, &idle, &s.config, self.cpus)
+    }
+
+    /// Apps frozen now.
+    pub fn frozen(&self) -> BTreeSet<String> {
+        self.lock().frozen.clone()
+    }
+
+    /// Recordings running now: name → topics.
+    pub fn recordings(&self) -> BTreeMap<String, Vec<String>> {
+        self.lock().recording.clone()
     }
 
     fn running(s: &SimState) -> impl Iterator<Item = &SimNode> {
@@ -468,6 +485,49 @@ impl Robot for SimRobot {
 
     fn start_app<'a>(&'a self, app: &'a str) -> BoxFuture<'a, Result<(), RobotError>> {
         Box::pin(async move { self.set_app(app, false) })
+    }
+
+    fn freeze_app<'a>(
+        &'a self,
+        app: &'a str,
+        frozen: bool,
+    ) -> BoxFuture<'a, Result<(), RobotError>> {
+        Box::pin(async move {
+            let mut s = self.lock();
+            if !s.nodes.iter().any(|n| n.app == app) {
+                return Err(RobotError::new("freeze_app", format!("unknown app {app}")));
+            }
+            if frozen {
+                s.frozen.insert(app.into());
+            } else {
+                s.frozen.remove(app);
+            }
+            Ok(())
+        })
+    }
+
+    fn start_recording<'a>(
+        &'a self,
+        name: &'a str,
+        topics: &'a [String],
+    ) -> BoxFuture<'a, Result<Option<String>, RobotError>> {
+        Box::pin(async move {
+            if topics.is_empty() {
+                return Ok(None);
+            }
+            self.lock().recording.insert(name.into(), topics.to_vec());
+            Ok(Some(format!("sim://{name}.bag")))
+        })
+    }
+
+    fn stop_recording<'a>(
+        &'a self,
+        name: &'a str,
+    ) -> BoxFuture<'a, Result<Option<String>, RobotError>> {
+        Box::pin(async move {
+            let was = self.lock().recording.remove(name);
+            Ok(was.map(|_| format!("sim://{name}.bag")))
+        })
     }
 
     fn events(&self) -> broadcast::Receiver<RobotEvent> {

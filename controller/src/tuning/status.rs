@@ -154,14 +154,17 @@ fn conditions(run: &Run) -> (Cond, Cond) {
             (False, reasons::UNSAT, reason.clone()),
             (False, reasons::UNSAT, reason),
         ),
-        State::RemediateStop { .. }
-        | State::RemediateApply { .. }
-        | State::Remediating { .. }
-        | State::RemediateUndo { .. } => (
+        State::RemediatePause { remedy }
+        | State::RemediateApply { remedy }
+        | State::Remediating { remedy }
+        | State::RemediateUndo { remedy } => (
             (
                 False,
                 reasons::REMEDIATING,
-                "non-core apps stopped until tuning is allowed".into(),
+                format!(
+                    "non-core apps {} until tuning is allowed",
+                    if remedy.freeze { "frozen" } else { "stopped" }
+                ),
             ),
             (
                 Unknown,

@@ -153,6 +153,16 @@ impl Agent {
 
     /// Stops a node's supervisor and every process in its cgroup.
     pub(crate) async fn stop_node(&self, node: &NodeName) {
+        // A frozen process takes no signal but SIGKILL: thaw it for a graceful stop.
+        if self
+            .st()
+            .nodes
+            .get(node)
+            .is_some_and(|n| n.persisted.frozen)
+        {
+            self.update_node(node, |p| p.frozen = false);
+            supervise::signal_cgroup(self, node, libc::SIGCONT);
+        }
         let sup = self
             .st()
             .nodes

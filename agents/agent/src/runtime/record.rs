@@ -1,0 +1,198 @@
+//! Rosbag recordings on request. The controller records the inputs of the
+//! apps a remediation pauses, so the robot's situation can be replayed when
+//! relearning later. A recording is `rosbag record -O <dir>/<name>-<ms>.bag
+//! <topics>` against the runtime's master, in its own process group, with its
+//! output in `<dir>/<name>.log`; stopping sends SIGINT so rosbag closes the
+//! bag (it writes `<file>.active` and renames it when done), SIGKILL after
+//! [`STOP_TIMEOUT`]. One recording per name.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use tokio::process::{Child, Command};
+use tokio::sync::Mutex;
+
+use crate::error::{Error, Result};
+
+/// How long rosbag gets to close its bag after SIGINT.
+pub const STOP_TIMEOUT: Duration = Duration::from_secs(10);
+
+/// The recordings of one runtime.
+#[derive(Debug)]
+pub struct Recordings {
+    dir: PathBuf,
+    active: Mutex<BTreeMap<String, Active>>,
+}
+
+#[derive(Debug)]
+struct Active {
+    child: Child,
+    path: PathBuf,
+}
+
+/// `rosbag` on `PATH` (or Debian's `/usr/bin/rosbag`), if installed.
+pub fn find_rosbag() -> Option<PathBuf> {
+    std::env::var_os("PATH")
+        .into_iter()
+        .flat_map(|p| std::env::split_paths(&p).collect::<Vec<_>>())
+        .chain([PathBuf::from("/usr/bin")])
+        .map(|d| d.join("rosbag"))
+        .find(|p| p.is_file())
+}
+
+/// A recording name becomes a file name: letters, digits, `.`, `_`, `-`,
+/// at most 64, not starting with `.`.
+pub fn valid_name(name: &str) -> bool {
+    !name.is_empty()
+        && name.len() <= 64
+        && !name.starts_with('.')
+        && name
+            .chars()
+            .all(|c| c.is_ascii_alphanumeric() || matches!(c, '.' | '_' | '-'))
+}
+
+impl Recordings {
+    /// Recordings under `dir` (created on first use).
+    pub fn new(dir: PathBuf) -> Recordings {
+        Recordings {
+            dir,
+            active: Mutex::new(BTreeMap::new()),
+        }
+    }
+
+    /// Starts recording `topics` as `name` against `master_uri`. `None` when
+    /// there is nothing to record or rosbag is not installed; a recording of
+    /// that name already running is kept and its file returned.
+    pub async fn start(
+        &self,
+        name: &str,
+        topics: &[String],
+        master_uri: &str,
+    ) -> Result<Option<PathBuf>> {
+        if !valid_name(name) {
+            return Err(Error::InvalidRecording(format!(
+                "recording name {name:?}: use letters, digits, '.', '_' and '-' (at most 64)"
+            )));
+        }
+        if let Some(t) = topics.iter().find(|t| !t.starts_with('/')) {
+            return Err(Error::InvalidRecording(format!(
+                "topic {t:?} is not a global ROS name"
+            )));
+        }
+        let mut active = self.active.lock().await;
+        if let Some(a) = active.get(name) {
+            return Ok(Some(a.path.clone()));
+        }
+        let (Some(rosbag), false) = (find_rosbag(), topics.is_empty()) else {
+            return Ok(None);
+        };
+        let io = |e: std::io::Error, path: &Path| Error::Io {
+            path: path.to_path_buf(),
+            source: e,
+        };
+        std::fs::create_dir_all(&self.dir).map_err(|e| io(e, &self.dir))?;
+        let path = self.dir.join(format!("{name}-{}.bag", super::unix_ms()));
+        let log_path = self.dir.join(format!("{name}.log"));
+        let log = crate::spawn::open_log(&log_path)?;
+        let err = log.try_clone().map_err(|e| io(e, &log_path))?;
+        let mut cmd = Command::new(&rosbag);
+        cmd.arg("record")
+            .arg("-O")
+            .arg(&path)
+            .args(topics)
+            .env("ROS_MASTER_URI", master_uri)
+            .env("ROS_HOME", &self.dir)
+            .stdin(std::process::Stdio::null())
+            .stdout(log)
+            .stderr(err)
+            .process_group(0)
+            .kill_on_drop(false);
+        if std::env::var_os("ROS_HOSTNAME").is_none() && std::env::var_os("ROS_IP").is_none() {
+            cmd.env("ROS_HOSTNAME", "localhost");
+        }
+        let child = cmd.spawn().map_err(|e| io(e, &rosbag))?;
+        active.insert(
+            name.to_owned(),
+            Active {
+                child,
+                path: path.clone(),
+            },
+        );
+        Ok(Some(path))
+    }
+
+    /// Stops recording `name`; the bag's path, or `None` if none was running.
+    pub async fn stop(&self, name: &str) -> Option<PathBuf> {
+        let a = self.active.lock().await.remove(name)?;
+        Some(finish(a).await)
+    }
+
+    /// Stops every recording (runtime shutdown).
+    pub async fn stop_all(&self) {
+        let all = std::mem::take(&mut *self.active.lock().await);
+        for a in all.into_values() {
+            finish(a).await;
+        }
+    }
+}
+
+async fn finish(mut a: Active) -> PathBuf {
+    let group = a.child.id().and_then(|p| i32::try_from(p).ok());
+    if let Some(g) = group {
+        #[allow(unsafe_code)]
+        // SAFETY: kill(2) takes plain integers and touches no memory of ours.
+        unsafe {
+            libc::kill(-g, libc::SIGINT);
+        }
+    }
+    if tokio::time::timeout(STOP_TIMEOUT, a.child.wait())
+        .await
+        .is_err()
+    {
+        if let Some(g) = group {
+            #[allow(unsafe_code)]
+            // SAFETY: as above.
+            unsafe {
+                libc::kill(-g, libc::SIGKILL);
+            }
+        }
+        let _ = a.child.wait().await;
+    }
+    a.path
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn names_stay_inside_the_directory() {
+        assert!(valid_name("remedied-nav_1.0"));
+        for bad in ["", ".hidden", "../x", "a/b", "a b", &"x".repeat(65)] {
+            assert!(!valid_name(bad), "{bad:?}");
+        }
+    }
+
+    #[tokio::test]
+    async fn nothing_to_record_is_no_recording() {
+        let dir = tempfile::tempdir().unwrap();
+        let r = Recordings::new(dir.path().join("bags"));
+        assert_eq!(
+            r.start("x", &[], "http://localhost:1/").await.unwrap(),
+            None
+        );
+        assert!(
+            r.start("../x", &["/a".into()], "http://localhost:1/")
+                .await
+                .is_err()
+        );
+        assert!(
+            r.start("x", &["a".into()], "http://localhost:1/")
+                .await
+                .is_err()
+        );
+        assert_eq!(r.stop("x").await, None);
+        assert!(!dir.path().join("bags").exists());
+    }
+}
