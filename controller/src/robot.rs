@@ -1,14 +1,16 @@
 //! The robots the controller drives, as the tuning loop's [`Robot`]: the node
 //! runtime embedded in this process (`configbot serve --agent`) or a remote
-//! agent over its API (`AgentClient`). Both map the runtime's events onto
-//! [`RobotEvent`]s. [`sync_stacks`] keeps the robot running the newest valid
-//! RobotStack of the store.
+//! agent over its API (`AgentClient`), one generic [`AgentRobot`] over their
+//! shared method set. Both map the runtime's events onto [`RobotEvent`]s.
+//! [`sync_stacks`] keeps the robot running the newest valid RobotStack of the
+//! store.
 
+use std::path::PathBuf;
 use std::sync::Arc;
 
 use configbot_agent::client::AgentClient;
 use configbot_agent::measure::{MeasureReport, MeasureRequest};
-use configbot_agent::{AgentEvent, NodeRuntime, RuntimeEvent, StackSpec};
+use configbot_agent::{AgentEvent, NodeRuntime, RuntimeEvent};
 use configbot_dataplane::Graph;
 use configbot_manifests::{Kind, ResourceConfig, RobotStack};
 use tokio::sync::broadcast;
@@ -49,138 +51,139 @@ pub fn robot_event(e: &RuntimeEvent) -> Option<RobotEvent> {
     })
 }
 
-/// The node runtime in this process.
-pub struct EmbeddedRobot {
-    runtime: NodeRuntime,
-    events: broadcast::Sender<RobotEvent>,
+/// The node runtime's method set. [`NodeRuntime`] (in this process) and
+/// [`AgentClient`] (a remote agent over its API) have the same inherent
+/// methods; [`node_api!`] states that once as this trait, so one
+/// [`Robot`] implementation serves both.
+trait NodeApi: Send + Sync + 'static {
+    type Error: std::error::Error + Send + Sync + 'static;
+    fn apply(&self, cfg: &ResourceConfig) -> impl Future<Output = Result<(), Self::Error>> + Send;
+    fn measure(
+        &self,
+        req: &MeasureRequest,
+    ) -> impl Future<Output = Result<MeasureReport, Self::Error>> + Send;
+    fn graph(&self) -> impl Future<Output = Result<Graph, Self::Error>> + Send;
+    fn stop_app(&self, app: &str) -> impl Future<Output = Result<(), Self::Error>> + Send;
+    fn start_app(&self, app: &str) -> impl Future<Output = Result<(), Self::Error>> + Send;
+    fn freeze_app(&self, app: &str) -> impl Future<Output = Result<(), Self::Error>> + Send;
+    fn thaw_app(&self, app: &str) -> impl Future<Output = Result<(), Self::Error>> + Send;
+    fn start_recording(
+        &self,
+        name: &str,
+        topics: &[String],
+    ) -> impl Future<Output = Result<Option<PathBuf>, Self::Error>> + Send;
+    fn stop_recording(
+        &self,
+        name: &str,
+    ) -> impl Future<Output = Result<Option<PathBuf>, Self::Error>> + Send;
+    fn set_stack(&self, stack: &RobotStack)
+    -> impl Future<Output = Result<(), Self::Error>> + Send;
 }
 
-impl std::fmt::Debug for EmbeddedRobot {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("EmbeddedRobot").finish_non_exhaustive()
-    }
-}
-
-impl EmbeddedRobot {
-    /// Wraps `runtime`; must be called inside a tokio runtime.
-    pub fn new(runtime: NodeRuntime) -> EmbeddedRobot {
-        let (events, _) = broadcast::channel(1024);
-        tokio::spawn(forward_until_closed(runtime.events(), events.clone()));
-        EmbeddedRobot { runtime, events }
-    }
-
-    pub fn runtime(&self) -> &NodeRuntime {
-        &self.runtime
-    }
-}
-
-fn wrap<E: std::error::Error + Send + Sync + 'static>(
-    op: &'static str,
-) -> impl Fn(E) -> RobotError {
-    move |e| RobotError::wrap(op, e)
-}
-
-fn bag_path(p: Option<std::path::PathBuf>) -> Option<String> {
-    p.map(|p| p.display().to_string())
-}
-
-impl Robot for EmbeddedRobot {
-    fn apply<'a>(&'a self, cfg: &'a ResourceConfig) -> BoxFuture<'a, Result<(), RobotError>> {
-        Box::pin(async move { self.runtime.apply(cfg).await.map_err(wrap("apply")) })
-    }
-
-    fn measure<'a>(
-        &'a self,
-        req: &'a MeasureRequest,
-    ) -> BoxFuture<'a, Result<MeasureReport, RobotError>> {
-        Box::pin(async move { self.runtime.measure(req).await.map_err(wrap("measure")) })
-    }
-
-    fn graph(&self) -> BoxFuture<'_, Result<Graph, RobotError>> {
-        Box::pin(async move { self.runtime.graph().await.map_err(wrap("graph")) })
-    }
-
-    fn stop_app<'a>(&'a self, app: &'a str) -> BoxFuture<'a, Result<(), RobotError>> {
-        Box::pin(async move { self.runtime.stop_app(app).await.map_err(wrap("stop_app")) })
-    }
-
-    fn start_app<'a>(&'a self, app: &'a str) -> BoxFuture<'a, Result<(), RobotError>> {
-        Box::pin(async move { self.runtime.start_app(app).await.map_err(wrap("start_app")) })
-    }
-
-    fn freeze_app<'a>(
-        &'a self,
-        app: &'a str,
-        frozen: bool,
-    ) -> BoxFuture<'a, Result<(), RobotError>> {
-        Box::pin(async move {
-            if frozen {
-                self.runtime.freeze_app(app).await
-            } else {
-                self.runtime.thaw_app(app).await
+/// Implements [`NodeApi`] for a type by calling its inherent methods of the
+/// same names (inherent methods take precedence in `<T>::name` paths).
+macro_rules! node_api {
+    ($t:ty, $err:ty) => {
+        impl NodeApi for $t {
+            type Error = $err;
+            fn apply(&self, cfg: &ResourceConfig) -> impl Future<Output = Result<(), $err>> + Send {
+                <$t>::apply(self, cfg)
             }
-            .map_err(wrap("freeze_app"))
-        })
-    }
-
-    fn start_recording<'a>(
-        &'a self,
-        name: &'a str,
-        topics: &'a [String],
-    ) -> BoxFuture<'a, Result<Option<String>, RobotError>> {
-        Box::pin(async move {
-            let p = self.runtime.start_recording(name, topics).await;
-            p.map(bag_path).map_err(wrap("start_recording"))
-        })
-    }
-
-    fn stop_recording<'a>(
-        &'a self,
-        name: &'a str,
-    ) -> BoxFuture<'a, Result<Option<String>, RobotError>> {
-        Box::pin(async move {
-            let p = self.runtime.stop_recording(name).await;
-            p.map(bag_path).map_err(wrap("stop_recording"))
-        })
-    }
-
-    fn events(&self) -> broadcast::Receiver<RobotEvent> {
-        self.events.subscribe()
-    }
-
-    fn set_stack<'a>(
-        &'a self,
-        stack: Option<&'a RobotStack>,
-    ) -> BoxFuture<'a, Result<(), RobotError>> {
-        Box::pin(async move {
-            match stack {
-                Some(s) => self.runtime.set_stack(s).await,
-                None => self
-                    .runtime
-                    .set_stack_spec(StackSpec::default())
-                    .await
-                    .map(|_| ()),
+            fn measure(
+                &self,
+                req: &MeasureRequest,
+            ) -> impl Future<Output = Result<MeasureReport, $err>> + Send {
+                <$t>::measure(self, req)
             }
-            .map_err(wrap("set_stack"))
-        })
-    }
+            fn graph(&self) -> impl Future<Output = Result<Graph, $err>> + Send {
+                <$t>::graph(self)
+            }
+            fn stop_app(&self, app: &str) -> impl Future<Output = Result<(), $err>> + Send {
+                <$t>::stop_app(self, app)
+            }
+            fn start_app(&self, app: &str) -> impl Future<Output = Result<(), $err>> + Send {
+                <$t>::start_app(self, app)
+            }
+            fn freeze_app(&self, app: &str) -> impl Future<Output = Result<(), $err>> + Send {
+                <$t>::freeze_app(self, app)
+            }
+            fn thaw_app(&self, app: &str) -> impl Future<Output = Result<(), $err>> + Send {
+                <$t>::thaw_app(self, app)
+            }
+            fn start_recording(
+                &self,
+                name: &str,
+                topics: &[String],
+            ) -> impl Future<Output = Result<Option<PathBuf>, $err>> + Send {
+                <$t>::start_recording(self, name, topics)
+            }
+            fn stop_recording(
+                &self,
+                name: &str,
+            ) -> impl Future<Output = Result<Option<PathBuf>, $err>> + Send {
+                <$t>::stop_recording(self, name)
+            }
+            fn set_stack(
+                &self,
+                stack: &RobotStack,
+            ) -> impl Future<Output = Result<(), $err>> + Send {
+                <$t>::set_stack(self, stack)
+            }
+        }
+    };
 }
 
-/// A node agent running alone, reached over its API.
-pub struct RemoteRobot {
-    client: AgentClient,
+node_api!(NodeRuntime, configbot_agent::Error);
+node_api!(AgentClient, configbot_agent::client::ClientError);
+
+/// A robot driven through a node runtime's method set: [`EmbeddedRobot`] or
+/// [`RemoteRobot`]. Runtime events are mapped onto [`RobotEvent`]s by a
+/// forwarding task that ends with the robot.
+pub struct AgentRobot<N> {
+    node: N,
     events: broadcast::Sender<RobotEvent>,
     /// Dropped with the robot: ends the event forwarding task.
     _stop: tokio::sync::oneshot::Sender<()>,
 }
 
-impl std::fmt::Debug for RemoteRobot {
+/// The node runtime in this process.
+pub type EmbeddedRobot = AgentRobot<NodeRuntime>;
+/// A node agent running alone, reached over its API.
+pub type RemoteRobot = AgentRobot<AgentClient>;
+
+impl<N> std::fmt::Debug for AgentRobot<N> {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("RemoteRobot").finish_non_exhaustive()
+        f.debug_struct("AgentRobot")
+            .field("node", &std::any::type_name::<N>())
+            .finish_non_exhaustive()
     }
 }
 
-impl RemoteRobot {
+impl AgentRobot<NodeRuntime> {
+    /// Wraps `runtime`; must be called inside a tokio runtime.
+    pub fn new(runtime: NodeRuntime) -> EmbeddedRobot {
+        let (events, _) = broadcast::channel(1024);
+        let (stop, mut stopped) = tokio::sync::oneshot::channel::<()>();
+        let (rx, tx) = (runtime.events(), events.clone());
+        tokio::spawn(async move {
+            tokio::select! {
+                _ = &mut stopped => {}
+                () = forward_until_closed(rx, tx) => {}
+            }
+        });
+        AgentRobot {
+            node: runtime,
+            events,
+            _stop: stop,
+        }
+    }
+
+    pub fn runtime(&self) -> &NodeRuntime {
+        &self.node
+    }
+}
+
+impl AgentRobot<AgentClient> {
     /// Follows the agent's event stream, reconnecting every second when it drops.
     pub fn new(client: AgentClient) -> RemoteRobot {
         let (events, _) = broadcast::channel(1024);
@@ -201,8 +204,8 @@ impl RemoteRobot {
                 tokio::time::sleep(std::time::Duration::from_secs(1)).await;
             }
         });
-        RemoteRobot {
-            client,
+        AgentRobot {
+            node: client,
             events,
             _stop: stop,
         }
@@ -227,28 +230,38 @@ async fn forward_until_closed(
     }
 }
 
-impl Robot for RemoteRobot {
+fn wrap<E: std::error::Error + Send + Sync + 'static>(
+    op: &'static str,
+) -> impl Fn(E) -> RobotError {
+    move |e| RobotError::wrap(op, e)
+}
+
+fn bag_path(p: Option<PathBuf>) -> Option<String> {
+    p.map(|p| p.display().to_string())
+}
+
+impl<N: NodeApi> Robot for AgentRobot<N> {
     fn apply<'a>(&'a self, cfg: &'a ResourceConfig) -> BoxFuture<'a, Result<(), RobotError>> {
-        Box::pin(async move { self.client.apply(cfg).await.map_err(wrap("apply")) })
+        Box::pin(async move { self.node.apply(cfg).await.map_err(wrap("apply")) })
     }
 
     fn measure<'a>(
         &'a self,
         req: &'a MeasureRequest,
     ) -> BoxFuture<'a, Result<MeasureReport, RobotError>> {
-        Box::pin(async move { self.client.measure(req).await.map_err(wrap("measure")) })
+        Box::pin(async move { self.node.measure(req).await.map_err(wrap("measure")) })
     }
 
     fn graph(&self) -> BoxFuture<'_, Result<Graph, RobotError>> {
-        Box::pin(async move { self.client.graph().await.map_err(wrap("graph")) })
+        Box::pin(async move { self.node.graph().await.map_err(wrap("graph")) })
     }
 
     fn stop_app<'a>(&'a self, app: &'a str) -> BoxFuture<'a, Result<(), RobotError>> {
-        Box::pin(async move { self.client.stop_app(app).await.map_err(wrap("stop_app")) })
+        Box::pin(async move { self.node.stop_app(app).await.map_err(wrap("stop_app")) })
     }
 
     fn start_app<'a>(&'a self, app: &'a str) -> BoxFuture<'a, Result<(), RobotError>> {
-        Box::pin(async move { self.client.start_app(app).await.map_err(wrap("start_app")) })
+        Box::pin(async move { self.node.start_app(app).await.map_err(wrap("start_app")) })
     }
 
     fn freeze_app<'a>(
@@ -258,9 +271,9 @@ impl Robot for RemoteRobot {
     ) -> BoxFuture<'a, Result<(), RobotError>> {
         Box::pin(async move {
             if frozen {
-                self.client.freeze_app(app).await
+                self.node.freeze_app(app).await
             } else {
-                self.client.thaw_app(app).await
+                self.node.thaw_app(app).await
             }
             .map_err(wrap("freeze_app"))
         })
@@ -272,7 +285,7 @@ impl Robot for RemoteRobot {
         topics: &'a [String],
     ) -> BoxFuture<'a, Result<Option<String>, RobotError>> {
         Box::pin(async move {
-            let p = self.client.start_recording(name, topics).await;
+            let p = self.node.start_recording(name, topics).await;
             p.map(bag_path).map_err(wrap("start_recording"))
         })
     }
@@ -282,7 +295,7 @@ impl Robot for RemoteRobot {
         name: &'a str,
     ) -> BoxFuture<'a, Result<Option<String>, RobotError>> {
         Box::pin(async move {
-            let p = self.client.stop_recording(name).await;
+            let p = self.node.stop_recording(name).await;
             p.map(bag_path).map_err(wrap("stop_recording"))
         })
     }
@@ -304,10 +317,7 @@ impl Robot for RemoteRobot {
                     &empty
                 }
             };
-            self.client
-                .set_stack(stack)
-                .await
-                .map_err(wrap("set_stack"))
+            self.node.set_stack(stack).await.map_err(wrap("set_stack"))
         })
     }
 }
