@@ -9,9 +9,9 @@
 //! the test checks that the bench removed them and their processes, and
 //! removes them itself if the bench failed or was killed. As for the other
 //! scenarios ([`common::ROBOT_SHARES`]), the bench process (control plane,
-//! ROS master, meters) runs in a `configbot-e2e-<pid>-bench` cpu cgroup and
-//! its robot's root gets high `cpu.shares`, so a busy shared machine does
-//! not starve the robot it measures.
+//! ROS master, meters) runs in a `configbot-e2e-<pid>-bench` cpu cgroup; its
+//! robots' roots get a high CPU weight from the bench itself, so a busy
+//! shared machine does not starve the robot it measures.
 
 mod common;
 
@@ -57,24 +57,6 @@ impl Bench {
 
     fn root(&self) -> String {
         format!("configbot-demo-{}", self.child.id())
-    }
-
-    /// Gives the bench's current robot root high `cpu.shares` (each robot
-    /// of the bench creates it anew).
-    fn prioritise_robot(&self) {
-        let Some(cpu) = configbot_cgroups::Layout::detect()
-            .ok()
-            .and_then(|l| l.v1_cpu)
-        else {
-            return;
-        };
-        let shares = cpu.join(self.root()).join("cpu.shares");
-        let want = common::ROBOT_SHARES.to_string();
-        if let Ok(now) = std::fs::read_to_string(&shares)
-            && now.trim() != want
-        {
-            let _ = std::fs::write(&shares, &want);
-        }
     }
 }
 
@@ -288,7 +270,6 @@ fn quick_bench_writes_every_table_and_plot() {
         if let Some(s) = bench.child.try_wait().expect("wait") {
             break s;
         }
-        bench.prioritise_robot();
         assert!(
             Instant::now() < deadline,
             "bench --quick still running after 420 s:\n{}",

@@ -95,7 +95,8 @@ pub struct NodeStatus {
 }
 
 impl Agent {
-    /// Starts the agent for `stack`: creates the node cgroups, restores or
+    /// Starts the agent for `stack`: sets the subtree's CPU weight (when
+    /// configured), creates the node cgroups, restores or
     /// lifts limits (see [`state`]), re-attaches to processes that survived a
     /// previous agent, starts the rest and begins scanning for `match` nodes.
     pub async fn start(
@@ -106,6 +107,9 @@ impl Agent {
         stack.validate().map_err(Error::InvalidStack)?;
         let persisted = state::load(&settings.state_file)?.unwrap_or_default();
         let metrics = Metrics::new().map_err(Error::Metrics)?;
+        if let Some(w) = settings.subtree_cpu_weight {
+            backend.set_root_weight(w)?;
+        }
         let mut nodes = BTreeMap::new();
         for (app, n) in stack.nodes() {
             backend.create(&n.name)?;

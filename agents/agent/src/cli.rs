@@ -6,7 +6,7 @@ use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
-use configbot_cgroups::{Layout, SubtreeRoot, open_backend};
+use configbot_cgroups::{CpuWeight, Layout, SubtreeRoot, open_backend};
 
 use configbot_procmon::{MonitorKind, Preference};
 use configbot_ros1::Ros1Config;
@@ -90,6 +90,11 @@ pub struct AgentArgs {
     /// Lift every CPU limit when the agent stops on SIGINT/SIGTERM.
     #[arg(long)]
     pub lift_limits_on_shutdown: bool,
+    /// CPU weight of the robot's nodes together against the host's other
+    /// services (1–10000, cgroup v2 units; a service has 100; v1 cpu.shares =
+    /// weight × 10.24). Unset: the kernel's default.
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..=10_000))]
+    pub subtree_cpu_weight: Option<u32>,
 }
 
 impl AgentArgs {
@@ -104,6 +109,7 @@ impl AgentArgs {
             backoff_max: Duration::from_millis(self.backoff_max_ms),
             scan_interval: Duration::from_millis(self.scan_interval_ms),
             lift_limits_on_shutdown: self.lift_limits_on_shutdown,
+            subtree_cpu_weight: self.subtree_cpu_weight.map(CpuWeight::new).transpose()?,
             ..AgentSettings::default()
         })
     }

@@ -5,7 +5,7 @@ use std::collections::BTreeMap;
 use std::path::PathBuf;
 use std::time::Duration;
 
-use configbot_cgroups::{NodeName, SubtreeRoot};
+use configbot_cgroups::{CpuWeight, NodeName, SubtreeRoot};
 use serde::{Deserialize, Serialize};
 
 /// All apps the agent supervises on this robot.
@@ -113,6 +113,10 @@ pub struct AgentSettings {
     pub scan_interval: Duration,
     /// Lift every limit when the agent shuts down cleanly.
     pub lift_limits_on_shutdown: bool,
+    /// CPU weight of the agent's subtree against the host's other cgroups
+    /// (v2 units, 100 = a plain service); `None` leaves the kernel's value.
+    #[serde(default)]
+    pub subtree_cpu_weight: Option<CpuWeight>,
 }
 
 impl Default for AgentSettings {
@@ -128,6 +132,7 @@ impl Default for AgentSettings {
             backoff_max: Duration::from_secs(30),
             scan_interval: Duration::from_millis(500),
             lift_limits_on_shutdown: false,
+            subtree_cpu_weight: None,
         }
     }
 }

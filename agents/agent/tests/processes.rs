@@ -9,7 +9,7 @@ use std::time::Duration;
 
 use common::*;
 use configbot_agent::{AgentEvent, policy::ExitKind};
-use configbot_cgroups::{CgroupBackend, CpuLimit};
+use configbot_cgroups::{CgroupBackend, CpuLimit, CpuWeight};
 
 const T: Duration = Duration::from_secs(20);
 
@@ -340,14 +340,19 @@ async fn a_process_matching_two_match_nodes_is_claimed_once() {
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn configured_shutdown_lifts_every_limit_and_keeps_processes() {
+async fn configured_subtree_weight_is_set_and_shutdown_lifts_every_limit() {
     let mut env = Env::new();
     let stack = stack_json(
         r#"{"apps":[{"name":"a","nodes":[{"name":"/n","run":{"command":"/bin/sleep","args":["120"]}}]}]}"#,
     );
     let mut settings = env.settings();
     settings.lift_limits_on_shutdown = true;
+    settings.subtree_cpu_weight = Some(CpuWeight::new(6400).unwrap());
     let agent = env.start_with(stack, settings).await;
+    assert_eq!(agent.backend().root_weight().unwrap().v2(), 6400);
+    let cpu = configbot_cgroups::Layout::detect().unwrap().v1_cpu.unwrap();
+    let shares = std::fs::read_to_string(cpu.join(&env.root).join("cpu.shares")).unwrap();
+    assert_eq!(shares.trim(), "65536");
     let n = node("/n");
     wait_running(&agent, &n, T, "node running").await;
     set_limit(&agent, &n, CpuLimit::cpus(0.2));

@@ -6,7 +6,7 @@ use std::path::PathBuf;
 
 use crate::error::{Error, Result};
 use crate::layout::Layout;
-use crate::limit::CpuMax;
+use crate::limit::{CpuMax, CpuWeight};
 use crate::name::{NodeName, SubtreeRoot};
 use crate::stats::CpuStats;
 use crate::{V1Backend, V2Backend};
@@ -52,6 +52,12 @@ pub trait CgroupBackend: Debug + Send + Sync {
     fn remove(&self, node: &NodeName) -> Result<()>;
     /// Removes the subtree root itself once it has no node cgroups left.
     fn remove_root(&self) -> Result<()>;
+    /// Sets the subtree root's CPU weight against its siblings (the host's
+    /// other services), creating the root if needed: how much of a busy
+    /// machine the robot's nodes get together.
+    fn set_root_weight(&self, weight: CpuWeight) -> Result<()>;
+    /// The subtree root's CPU weight.
+    fn root_weight(&self) -> Result<CpuWeight>;
 }
 
 /// Picks the backend for a layout: the v1 `cpu` hierarchy when it exists

@@ -27,7 +27,9 @@ pub use apply::{AppliedNode, CgroupConfig, apply};
 pub use backend::{BackendKind, CgroupBackend, open_backend};
 pub use error::{Error, Result};
 pub use layout::{HierarchyKind, Layout};
-pub use limit::{CpuLimit, CpuMax, DEFAULT_PERIOD_US, MAX_PERIOD_US, MIN_PERIOD_US, MIN_QUOTA_US};
+pub use limit::{
+    CpuLimit, CpuMax, CpuWeight, DEFAULT_PERIOD_US, MAX_PERIOD_US, MIN_PERIOD_US, MIN_QUOTA_US,
+};
 pub use name::{NodeName, SubtreeRoot};
 pub use stats::{CpuStats, Pressure};
 pub use v1::V1Backend;

@@ -146,9 +146,67 @@ impl CpuMax {
     }
 }
 
+/// A CPU weight against sibling cgroups, in cgroup v2 units: 1–10000, a
+/// plain process's cgroup has 100. On v1 it is written as `cpu.shares` =
+/// weight × 1024 / 100 (v1's default 1024 = v2's 100).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(try_from = "u32", into = "u32")]
+pub struct CpuWeight(u32);
+
+impl CpuWeight {
+    /// The kernel's default.
+    pub const DEFAULT: CpuWeight = CpuWeight(100);
+
+    pub fn new(weight: u32) -> Result<Self> {
+        if (1..=10_000).contains(&weight) {
+            Ok(Self(weight))
+        } else {
+            Err(Error::InvalidLimit {
+                node: "subtree root".into(),
+                reason: format!("cpu weight {weight} is outside 1..=10000"),
+            })
+        }
+    }
+
+    /// The v2 `cpu.weight` value.
+    pub fn v2(self) -> u32 {
+        self.0
+    }
+
+    /// The v1 `cpu.shares` value.
+    pub fn v1_shares(self) -> u64 {
+        u64::from(self.0) * 1024 / 100
+    }
+}
+
+impl TryFrom<u32> for CpuWeight {
+    type Error = Error;
+    fn try_from(w: u32) -> Result<Self> {
+        Self::new(w)
+    }
+}
+
+impl From<CpuWeight> for u32 {
+    fn from(w: CpuWeight) -> u32 {
+        w.0
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn weights_map_to_v1_shares_within_the_kernels_ranges() {
+        assert_eq!(CpuWeight::DEFAULT.v1_shares(), 1024);
+        assert_eq!(CpuWeight::new(6400).unwrap().v1_shares(), 65_536);
+        assert_eq!(CpuWeight::new(1).unwrap().v1_shares(), 10);
+        assert_eq!(CpuWeight::new(10_000).unwrap().v1_shares(), 102_400);
+        assert!(CpuWeight::new(0).is_err());
+        assert!(CpuWeight::new(10_001).is_err());
+        assert!(CpuWeight::try_from(0).is_err());
+        assert_eq!(u32::from(CpuWeight::try_from(250).unwrap()), 250);
+    }
 
     type Case = (Option<f64>, u64, Option<(Option<u64>, u64)>);
 

@@ -11,7 +11,7 @@ use std::path::{Path, PathBuf};
 use crate::backend::{BackendKind, CgroupBackend};
 use crate::error::{Error, Result};
 use crate::fsio::{create_dir, read_file, read_ids, remove_dir, write_file};
-use crate::limit::CpuMax;
+use crate::limit::{CpuMax, CpuWeight};
 use crate::name::{NodeName, SubtreeRoot};
 use crate::stats::{CpuStats, apply_cpu_stat};
 
@@ -145,6 +145,26 @@ impl CgroupBackend for V1Backend {
             remove_dir(d)?;
         }
         Ok(())
+    }
+
+    fn set_root_weight(&self, weight: CpuWeight) -> Result<()> {
+        for d in self.dirs() {
+            create_dir(d)?;
+        }
+        write_file(
+            &self.cpu.join("cpu.shares"),
+            &weight.v1_shares().to_string(),
+        )
+    }
+
+    fn root_weight(&self) -> Result<CpuWeight> {
+        let path = self.cpu.join("cpu.shares");
+        let shares: u64 = read_file(&path)?.trim().parse().map_err(|e| Error::Parse {
+            path: path.clone(),
+            reason: format!("{e}"),
+        })?;
+        let w = u32::try_from((shares * 100).div_ceil(1024)).unwrap_or(u32::MAX);
+        CpuWeight::new(w.clamp(1, 10_000))
     }
 }
 

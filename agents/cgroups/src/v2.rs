@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 use crate::backend::{BackendKind, CgroupBackend};
 use crate::error::{Error, Result};
 use crate::fsio::{create_dir, read_file, read_ids, remove_dir, write_file};
-use crate::limit::CpuMax;
+use crate::limit::{CpuMax, CpuWeight};
 use crate::name::{NodeName, SubtreeRoot};
 use crate::stats::{CpuStats, apply_cpu_stat, parse_pressure};
 use crate::v1::list_nodes;
@@ -123,5 +123,19 @@ impl CgroupBackend for V2Backend {
 
     fn remove_root(&self) -> Result<()> {
         remove_dir(&self.root)
+    }
+
+    fn set_root_weight(&self, weight: CpuWeight) -> Result<()> {
+        self.ensure_root()?;
+        write_file(&self.root.join("cpu.weight"), &weight.v2().to_string())
+    }
+
+    fn root_weight(&self) -> Result<CpuWeight> {
+        let path = self.root.join("cpu.weight");
+        let w: u32 = read_file(&path)?.trim().parse().map_err(|e| Error::Parse {
+            path: path.clone(),
+            reason: format!("{e}"),
+        })?;
+        CpuWeight::new(w)
     }
 }

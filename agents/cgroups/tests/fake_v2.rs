@@ -6,7 +6,8 @@ use std::fs;
 use std::path::Path;
 
 use configbot_cgroups::{
-    CgroupBackend, CgroupConfig, CpuLimit, CpuMax, Error, NodeName, SubtreeRoot, V2Backend, apply,
+    CgroupBackend, CgroupConfig, CpuLimit, CpuMax, CpuWeight, Error, NodeName, SubtreeRoot,
+    V2Backend, apply,
 };
 
 fn fake_node(dir: &Path) {
@@ -41,7 +42,11 @@ fn v2_formats_and_rollback_on_fake_root() {
     fake_node(&root.join("node-a"));
     fake_node(&root.join("node-b"));
 
+    fs::write(root.join("cpu.weight"), "100\n").unwrap();
     let be = V2Backend::new(mount.to_path_buf(), SubtreeRoot::default());
+    assert_eq!(be.root_weight().unwrap(), CpuWeight::DEFAULT);
+    be.set_root_weight(CpuWeight::new(6400).unwrap()).unwrap();
+    assert_eq!(fs::read_to_string(root.join("cpu.weight")).unwrap(), "6400");
     let a = NodeName::new("/a").unwrap();
     let b = NodeName::new("/b").unwrap();
     be.create(&a).unwrap();
@@ -200,6 +205,12 @@ impl CgroupBackend for FailSecondWrite {
     }
     fn remove_root(&self) -> configbot_cgroups::Result<()> {
         self.inner.remove_root()
+    }
+    fn set_root_weight(&self, w: CpuWeight) -> configbot_cgroups::Result<()> {
+        self.inner.set_root_weight(w)
+    }
+    fn root_weight(&self) -> configbot_cgroups::Result<CpuWeight> {
+        self.inner.root_weight()
     }
 }
 

@@ -6,7 +6,7 @@ use std::collections::{BTreeMap, BTreeSet};
 use std::time::{Duration, Instant};
 
 use common::{Tree, measure_cpus};
-use configbot_cgroups::{CgroupBackend, CgroupConfig, CpuLimit, CpuMax, Error, apply};
+use configbot_cgroups::{CgroupBackend, CgroupConfig, CpuLimit, CpuMax, CpuWeight, Error, apply};
 
 const BUSY: &[&str] = &["-c", "while :; do :; done"];
 
@@ -192,4 +192,18 @@ fn nodes_lists_only_node_cgroups() {
         .map(|n| n.to_string())
         .collect();
     assert_eq!(names, ["/nav/planner", "/talker"]);
+}
+
+#[test]
+fn the_subtree_root_weight_is_its_cpu_shares() {
+    let t = Tree::new();
+    assert!(!t.cpu_root.exists());
+    t.backend
+        .set_root_weight(CpuWeight::new(6400).unwrap())
+        .unwrap();
+    let shares = std::fs::read_to_string(t.cpu_root.join("cpu.shares")).unwrap();
+    assert_eq!(shares.trim(), "65536");
+    assert_eq!(t.backend.root_weight().unwrap().v2(), 6400);
+    t.backend.set_root_weight(CpuWeight::DEFAULT).unwrap();
+    assert_eq!(t.backend.root_weight().unwrap(), CpuWeight::DEFAULT);
 }

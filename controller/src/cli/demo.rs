@@ -84,8 +84,14 @@ pub fn example(name: &str) -> anyhow::Result<(RobotStack, PerformanceSpec)> {
     }
 }
 
+/// CPU weight of a private robot's subtree (v1: 65536 shares). It stands
+/// for a robot that runs only its stack, so other work on this machine
+/// (builds, tests) must not decide what the demo and the bench measure.
+pub const PRIVATE_ROBOT_CPU_WEIGHT: u32 = 6400;
+
 /// A private robot: control plane + embedded agent in a temp dir, with its
-/// own cgroup subtree and ROS master port. `close` removes everything.
+/// own cgroup subtree (weight [`PRIVATE_ROBOT_CPU_WEIGHT`]) and ROS master
+/// port. `close` removes everything.
 pub struct PrivateRobot {
     pub dir: PathBuf,
     pub server: Server,
@@ -108,6 +114,7 @@ impl PrivateRobot {
             ros_master_uri: master_uri.clone(),
             no_ros: false,
             monitor: configbot_agent::cli::MonitorChoice::Auto,
+            subtree_cpu_weight: Some(PRIVATE_ROBOT_CPU_WEIGHT),
         };
         let rt = super::robot::start_runtime(&dir.join("agent"), &args).await?;
         let robot = Arc::new(EmbeddedRobot::new(rt));

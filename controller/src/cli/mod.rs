@@ -128,6 +128,11 @@ pub struct RobotArgs {
     /// With --agent: the process monitor.
     #[arg(long, value_enum, default_value_t = configbot_agent::cli::MonitorChoice::Auto)]
     pub monitor: configbot_agent::cli::MonitorChoice,
+    /// With --agent: CPU weight of the robot's nodes together against the
+    /// host's other services (1–10000, cgroup v2 units; a service has 100;
+    /// v1 cpu.shares = weight × 10.24). Unset: the kernel's default.
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..=10_000))]
+    pub subtree_cpu_weight: Option<u32>,
 }
 
 #[derive(Debug, Args)]

@@ -6,7 +6,7 @@ use std::sync::Arc;
 
 use configbot_agent::NodeRuntime;
 use configbot_agent::runtime::{RosOptions, RuntimeOptions};
-use configbot_cgroups::{Layout, SubtreeRoot, open_backend};
+use configbot_cgroups::{CpuWeight, Layout, SubtreeRoot, open_backend};
 
 use super::RobotArgs;
 use crate::robot::{EmbeddedRobot, RemoteRobot};
@@ -19,6 +19,7 @@ pub fn runtime_options(dir: &Path, args: &RobotArgs) -> anyhow::Result<RuntimeOp
             cgroup_root: SubtreeRoot::new(&args.cgroup_root)?,
             state_file: dir.join("agent-state.json"),
             log_dir: dir.join("logs"),
+            subtree_cpu_weight: args.subtree_cpu_weight.map(CpuWeight::new).transpose()?,
             ..configbot_agent::AgentSettings::default()
         },
         ros: (!args.no_ros).then(|| RosOptions {

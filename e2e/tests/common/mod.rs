@@ -8,9 +8,11 @@
 //! The scenarios are heavy (they load both CPUs on purpose), so a [`Robot`]
 //! holds a process-wide lock for its whole life: tests of one binary run one
 //! at a time, and cargo runs the test binaries one after another. The robot's
-//! subtree gets a high `cpu.shares` ([`ROBOT_SHARES`]) so that, like on a real
-//! robot that owns its CPUs, the stack is not at the mercy of whatever else
-//! runs on the (shared) test machine.
+//! subtree gets a high CPU weight (`serve --subtree-cpu-weight`
+//! [`ROBOT_WEIGHT`]) and the server a cgroup with as many shares
+//! ([`ROBOT_SHARES`]) so that, like on a real robot that owns its CPUs, the
+//! stack is not at the mercy of whatever else runs on the (shared) test
+//! machine.
 
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output, Stdio};
@@ -36,7 +38,10 @@ static COUNTER: AtomicU32 = AtomicU32::new(0);
 /// Serialises the scenarios of one test binary.
 static SERIAL: Mutex<()> = Mutex::new(());
 
-/// `cpu.shares` of the robot's subtree root (a plain task has 1024).
+/// CPU weight of the robot's subtree root, in cgroup v2 units (a plain
+/// service has 100) ...
+pub const ROBOT_WEIGHT: u32 = 6400;
+/// ... and as v1 `cpu.shares` (a plain task has 1024), for the server's cgroup.
 pub const ROBOT_SHARES: u64 = 65536;
 
 /// Milliseconds since the Unix epoch.
@@ -109,18 +114,16 @@ impl Robot {
         format!("http://localhost:{}/", self.ros_port)
     }
 
-    /// Creates the subtree root in the `cpu` hierarchy, and a sibling
-    /// `<root>-ctl` for the server itself, both with [`ROBOT_SHARES`] (the
-    /// server measures the nodes, so it must not be starved by them either).
+    /// Creates `<root>-ctl`, a sibling of the robot's subtree in the `cpu`
+    /// hierarchy for the server itself, with [`ROBOT_SHARES`] (the server
+    /// measures the nodes, so it must not be starved by them either).
     fn prioritise(&self) {
         let Some(cpu) = Layout::detect().ok().and_then(|l| l.v1_cpu) else {
             return;
         };
-        for dir in [cpu.join(&self.root), self.ctl_cgroup(&cpu)] {
-            std::fs::create_dir_all(&dir).expect("create a cpu cgroup");
-            std::fs::write(dir.join("cpu.shares"), ROBOT_SHARES.to_string())
-                .expect("set cpu.shares");
-        }
+        let dir = self.ctl_cgroup(&cpu);
+        std::fs::create_dir_all(&dir).expect("create a cpu cgroup");
+        std::fs::write(dir.join("cpu.shares"), ROBOT_SHARES.to_string()).expect("set cpu.shares");
     }
 
     fn ctl_cgroup(&self, cpu: &Path) -> PathBuf {
@@ -141,6 +144,7 @@ impl Robot {
             .arg("--socket")
             .arg(self.socket())
             .args(["--agent", "--cgroup-root", &self.root])
+            .args(["--subtree-cpu-weight", &ROBOT_WEIGHT.to_string()])
             .args(["--ros-master-uri", &self.master_uri()])
             .env("ROS_HOSTNAME", "localhost")
             .stdout(Stdio::null())
