@@ -26,21 +26,48 @@ pub mod reasons {
     pub const NOT_MEASURED: &str = "NotMeasured";
 }
 
-fn cond(
-    type_: &str,
-    status: ConditionStatus,
-    reason: &str,
-    message: String,
+/// Writes conditions of one object at one generation and time, and collects
+/// the events of the changes worth one.
+struct Conditions<'a> {
+    list: &'a mut Vec<Condition>,
     generation: i64,
-    now: &str,
-) -> Condition {
-    Condition {
-        type_: type_.into(),
-        status,
-        reason: reason.into(),
-        message,
-        last_transition_time: now.into(),
-        observed_generation: generation,
+    now: &'a str,
+    events: Vec<PlannedEvent>,
+}
+
+impl Conditions<'_> {
+    /// Sets a condition; true when it changed (a new status, reason or message).
+    fn set(&mut self, type_: &str, status: ConditionStatus, reason: &str, message: String) -> bool {
+        set_condition(
+            self.list,
+            Condition {
+                type_: type_.into(),
+                status,
+                reason: reason.into(),
+                message,
+                last_transition_time: self.now.into(),
+                observed_generation: self.generation,
+            },
+        )
+    }
+
+    /// Sets a condition and, when it changed, records an event of `event`
+    /// type (`Normal`/`Warning`) with `reason` and the same message.
+    fn set_with_event(
+        &mut self,
+        type_: &str,
+        status: ConditionStatus,
+        event: &'static str,
+        reason: &'static str,
+        message: String,
+    ) {
+        if self.set(type_, status, reason, message.clone()) {
+            self.events.push(PlannedEvent {
+                type_: event,
+                reason,
+                message,
+            });
+        }
     }
 }
 
@@ -48,62 +75,61 @@ fn generation(obj: &Value) -> i64 {
     obj["metadata"]["generation"].as_i64().unwrap_or(0)
 }
 
+/// Validation errors as one condition message.
+fn joined(errs: &[configbot_manifests::FieldError]) -> String {
+    errs.iter()
+        .map(|e| format!("{}: {}", e.path, e.message))
+        .collect::<Vec<_>>()
+        .join("; ")
+}
+
+/// The object's status as it is (default when absent or unreadable).
+fn old_status<T: serde::de::DeserializeOwned + Default>(obj: &Value) -> T {
+    obj.get("status")
+        .and_then(|s| serde_json::from_value(s.clone()).ok())
+        .unwrap_or_default()
+}
+
 /// Status of a RobotStack.
 pub fn robot_stack_status(obj: &Value, now: &str) -> (Option<Value>, Vec<PlannedEvent>) {
-    let g = generation(obj);
-    let old: RobotStackStatus = obj
-        .get("status")
-        .and_then(|s| serde_json::from_value(s.clone()).ok())
-        .unwrap_or_default();
+    let old: RobotStackStatus = old_status(obj);
     let mut new = old.clone();
-    new.observed_generation = g;
-    let mut events = Vec::new();
-    match configbot_manifests::decode_and_validate(obj) {
+    new.observed_generation = generation(obj);
+    let mut c = Conditions {
+        list: &mut new.conditions,
+        generation: new.observed_generation,
+        now,
+        events: Vec::new(),
+    };
+    let phase = match configbot_manifests::decode_and_validate(obj) {
         Ok(Manifest::RobotStack(s)) => {
-            new.apps = s.spec.apps.len() as u32;
-            new.nodes = s.spec.nodes().count() as u32;
-            if new.phase.is_empty() || new.phase == "Invalid" {
-                new.phase = "Accepted".into();
-            }
-            let msg = format!("{} apps, {} nodes", new.apps, new.nodes);
-            if set_condition(
-                &mut new.conditions,
-                cond(
-                    ct::ACCEPTED,
-                    ConditionStatus::True,
-                    reasons::VALID,
-                    msg.clone(),
-                    g,
-                    now,
-                ),
-            ) {
-                events.push(PlannedEvent {
-                    type_: "Normal",
-                    reason: "Accepted",
-                    message: msg,
-                });
-            }
-        }
-        Ok(_) => {}
-        Err(errs) => {
-            new.phase = "Invalid".into();
-            let msg = errs
-                .iter()
-                .map(|e| format!("{}: {}", e.path, e.message))
-                .collect::<Vec<_>>()
-                .join("; ");
-            set_condition(
-                &mut new.conditions,
-                cond(
-                    ct::ACCEPTED,
-                    ConditionStatus::False,
-                    reasons::INVALID,
-                    msg,
-                    g,
-                    now,
-                ),
+            let (apps, nodes) = (s.spec.apps.len() as u32, s.spec.nodes().count() as u32);
+            let msg = format!("{apps} apps, {nodes} nodes");
+            c.set_with_event(
+                ct::ACCEPTED,
+                ConditionStatus::True,
+                "Normal",
+                "Accepted",
+                msg,
             );
+            new.apps = apps;
+            new.nodes = nodes;
+            (new.phase.is_empty() || new.phase == "Invalid").then_some("Accepted")
         }
+        Ok(_) => None,
+        Err(errs) => {
+            c.set(
+                ct::ACCEPTED,
+                ConditionStatus::False,
+                reasons::INVALID,
+                joined(&errs),
+            );
+            Some("Invalid")
+        }
+    };
+    let events = c.events;
+    if let Some(p) = phase {
+        new.phase = p.into();
     }
     finish(&old, new, events)
 }
@@ -114,36 +140,24 @@ pub fn performance_spec_status(
     stack: Option<&Value>,
     now: &str,
 ) -> (Option<Value>, Vec<PlannedEvent>) {
-    let g = generation(obj);
-    let old: PerformanceSpecStatus = obj
-        .get("status")
-        .and_then(|s| serde_json::from_value(s.clone()).ok())
-        .unwrap_or_default();
+    let old: PerformanceSpecStatus = old_status(obj);
     let mut new = old.clone();
-    new.observed_generation = g;
-    let mut events = Vec::new();
+    new.observed_generation = generation(obj);
+    let mut phase = new.phase.clone();
+    let mut c = Conditions {
+        list: &mut new.conditions,
+        generation: new.observed_generation,
+        now,
+        events: Vec::new(),
+    };
+    use ConditionStatus::{False, True, Unknown};
     let spec = match configbot_manifests::decode_and_validate(obj) {
         Ok(Manifest::PerformanceSpec(p)) => p,
-        Ok(_) => return (None, events),
+        Ok(_) => return (None, Vec::new()),
         Err(errs) => {
+            c.set(ct::ACCEPTED, False, reasons::INVALID, joined(&errs));
             new.phase = "Invalid".into();
-            let msg = errs
-                .iter()
-                .map(|e| format!("{}: {}", e.path, e.message))
-                .collect::<Vec<_>>()
-                .join("; ");
-            set_condition(
-                &mut new.conditions,
-                cond(
-                    ct::ACCEPTED,
-                    ConditionStatus::False,
-                    reasons::INVALID,
-                    msg,
-                    g,
-                    now,
-                ),
-            );
-            return finish(&old, new, events);
+            return finish(&old, new, Vec::new());
         }
     };
     let stack_name = &spec.spec.stack_ref.name;
@@ -153,113 +167,52 @@ pub fn performance_spec_status(
     });
     match stack {
         None => {
-            new.phase = "Pending".into();
+            phase = "Pending".into();
             let msg = format!(
                 "RobotStack {stack_name:?} does not exist in namespace {:?}; apply it and this spec proceeds",
                 spec.metadata.namespace()
             );
-            if set_condition(
-                &mut new.conditions,
-                cond(
-                    ct::STACK_RESOLVED,
-                    ConditionStatus::False,
-                    reasons::STACK_NOT_FOUND,
-                    msg.clone(),
-                    g,
-                    now,
-                ),
-            ) {
-                events.push(PlannedEvent {
-                    type_: "Warning",
-                    reason: reasons::STACK_NOT_FOUND,
-                    message: msg,
-                });
-            }
-            set_condition(
-                &mut new.conditions,
-                cond(
-                    ct::READY,
-                    ConditionStatus::False,
-                    reasons::STACK_NOT_FOUND,
-                    "waiting for the stack".into(),
-                    g,
-                    now,
-                ),
-            );
+            let r = reasons::STACK_NOT_FOUND;
+            c.set_with_event(ct::STACK_RESOLVED, False, "Warning", r, msg);
+            c.set(ct::READY, False, r, "waiting for the stack".into());
         }
         Some(stack) => {
             let errs = configbot_manifests::validate::validate_against_stack(&spec, &stack);
             if errs.is_empty() {
                 let msg = format!("RobotStack {stack_name:?} found");
-                if set_condition(
-                    &mut new.conditions,
-                    cond(
-                        ct::STACK_RESOLVED,
-                        ConditionStatus::True,
-                        reasons::STACK_FOUND,
-                        msg.clone(),
-                        g,
-                        now,
-                    ),
-                ) {
-                    events.push(PlannedEvent {
-                        type_: "Normal",
-                        reason: reasons::STACK_FOUND,
-                        message: msg,
-                    });
-                }
-                set_condition(
-                    &mut new.conditions,
-                    cond(
-                        ct::ACCEPTED,
-                        ConditionStatus::True,
-                        reasons::VALID,
-                        format!("{} metrics", spec.spec.metrics.len()),
-                        g,
-                        now,
-                    ),
+                c.set_with_event(
+                    ct::STACK_RESOLVED,
+                    True,
+                    "Normal",
+                    reasons::STACK_FOUND,
+                    msg,
                 );
-                if matches!(new.phase.as_str(), "" | "Pending" | "Invalid") {
-                    new.phase = "Accepted".into();
+                let metrics = format!("{} metrics", spec.spec.metrics.len());
+                c.set(ct::ACCEPTED, True, reasons::VALID, metrics);
+                if matches!(phase.as_str(), "" | "Pending" | "Invalid") {
+                    phase = "Accepted".into();
                 }
                 // Once a tuning run reports readiness, the run owns `Ready`.
-                let tuned = new.conditions.iter().any(|c| {
+                let tuned = c.list.iter().any(|c| {
                     c.type_ == ct::READY
                         && ![reasons::NOT_MEASURED, reasons::STACK_NOT_FOUND]
                             .contains(&c.reason.as_str())
                 });
                 if !tuned {
-                    set_condition(
-                        &mut new.conditions,
-                        cond(
-                            ct::READY,
-                            ConditionStatus::Unknown,
-                            reasons::NOT_MEASURED,
-                            "no agent has reported metrics for this stack yet".into(),
-                            g,
-                            now,
-                        ),
-                    );
+                    let msg = "no agent has reported metrics for this stack yet".into();
+                    c.set(ct::READY, Unknown, reasons::NOT_MEASURED, msg);
                 }
             } else {
-                new.phase = "Invalid".into();
-                let msg = errs
-                    .iter()
-                    .map(|e| format!("{}: {}", e.path, e.message))
-                    .collect::<Vec<_>>()
-                    .join("; ");
-                set_condition(
-                    &mut new.conditions,
-                    cond(
-                        ct::STACK_RESOLVED,
-                        ConditionStatus::False,
-                        reasons::STACK_MISMATCH,
-                        msg.clone(),
-                        g,
-                        now,
-                    ),
+                phase = "Invalid".into();
+                let msg = joined(&errs);
+                c.set(
+                    ct::STACK_RESOLVED,
+                    False,
+                    reasons::STACK_MISMATCH,
+                    msg.clone(),
                 );
-                events.push(PlannedEvent {
+                // A mismatch is reported on every reconcile while it lasts.
+                c.events.push(PlannedEvent {
                     type_: "Warning",
                     reason: reasons::STACK_MISMATCH,
                     message: msg,
@@ -267,6 +220,8 @@ pub fn performance_spec_status(
             }
         }
     }
+    let events = c.events;
+    new.phase = phase;
     finish(&old, new, events)
 }
 
