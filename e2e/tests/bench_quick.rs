@@ -9,9 +9,9 @@
 //! the test checks that the bench removed them and their processes, and
 //! removes them itself if the bench failed or was killed. As for the other
 //! scenarios ([`common::ROBOT_SHARES`]), the bench process (control plane,
-//! ROS master, meters) runs in a `configbot-e2e-<pid>-bench` cpu cgroup; its
-//! robots' roots get a high CPU weight from the bench itself, so a busy
-//! shared machine does not starve the robot it measures.
+//! ROS master, meters) runs in a `configbot-e2e-<pid>-bench` cpu cgroup and
+//! its robots' roots get as high a weight (`--subtree-cpu-weight`), so a
+//! busy shared machine does not starve the robot it measures.
 
 mod common;
 
@@ -42,6 +42,7 @@ impl Bench {
         let child = Command::new(common::configbot_bin())
             .args(["bench", "--quick", "--out"])
             .arg(out)
+            .args(["--subtree-cpu-weight", &common::ROBOT_WEIGHT.to_string()])
             .env("ROS_HOSTNAME", "localhost")
             .stdout(std::fs::File::create(log).expect("log"))
             .stderr(Stdio::inherit())

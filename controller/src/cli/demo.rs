@@ -56,6 +56,12 @@ pub struct DemoArgs {
     /// Leave the stack running afterwards (until Ctrl-C).
     #[arg(long)]
     keep: bool,
+    /// CPU weight of the robot's nodes together against this machine's other
+    /// work (1–10000, cgroup v2 units; a service has 100). Unset: the
+    /// kernel's default, as the stack was calibrated with; on a busy machine
+    /// a high weight keeps other work from deciding the result.
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..=10_000))]
+    subtree_cpu_weight: Option<u32>,
 }
 
 /// The stack and spec of an example, with `command: configbot` pointed at this program.
@@ -84,14 +90,9 @@ pub fn example(name: &str) -> anyhow::Result<(RobotStack, PerformanceSpec)> {
     }
 }
 
-/// CPU weight of a private robot's subtree (v1: 65536 shares). It stands
-/// for a robot that runs only its stack, so other work on this machine
-/// (builds, tests) must not decide what the demo and the bench measure.
-pub const PRIVATE_ROBOT_CPU_WEIGHT: u32 = 6400;
-
 /// A private robot: control plane + embedded agent in a temp dir, with its
-/// own cgroup subtree (weight [`PRIVATE_ROBOT_CPU_WEIGHT`]) and ROS master
-/// port. `close` removes everything.
+/// own cgroup subtree (of CPU weight `cpu_weight`, default the kernel's) and
+/// ROS master port. `close` removes everything.
 pub struct PrivateRobot {
     pub dir: PathBuf,
     pub server: Server,
@@ -101,7 +102,7 @@ pub struct PrivateRobot {
 }
 
 impl PrivateRobot {
-    pub async fn start(dir: &Path) -> anyhow::Result<PrivateRobot> {
+    pub async fn start(dir: &Path, cpu_weight: Option<u32>) -> anyhow::Result<PrivateRobot> {
         std::fs::create_dir_all(dir)?;
         let port = std::net::TcpListener::bind("127.0.0.1:0")?
             .local_addr()?
@@ -114,7 +115,7 @@ impl PrivateRobot {
             ros_master_uri: master_uri.clone(),
             no_ros: false,
             monitor: configbot_agent::cli::MonitorChoice::Auto,
-            subtree_cpu_weight: Some(PRIVATE_ROBOT_CPU_WEIGHT),
+            subtree_cpu_weight: cpu_weight,
         };
         let rt = super::robot::start_runtime(&dir.join("agent"), &args).await?;
         let robot = Arc::new(EmbeddedRobot::new(rt));
@@ -187,7 +188,7 @@ pub async fn run(a: &DemoArgs) -> anyhow::Result<ExitCode> {
     if state.exists() {
         std::fs::remove_dir_all(&state)?;
     }
-    let robot = PrivateRobot::start(&state).await?;
+    let robot = PrivateRobot::start(&state, a.subtree_cpu_weight).await?;
     // Ctrl-C or SIGTERM mid-run still stops the nodes and removes the cgroups.
     let result = tokio::select! {
         r = demo(a, &robot, &stack, &spec, &out) => r,

@@ -71,6 +71,10 @@ pub struct BenchArgs {
     /// Give up a tuning run after this many seconds.
     #[arg(long, default_value_t = 900)]
     timeout_secs: u64,
+    /// CPU weight of each robot's nodes together against this machine's
+    /// other work (see `configbot demo --help`). Unset: the kernel's default.
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..=10_000))]
+    subtree_cpu_weight: Option<u32>,
 }
 
 /// One measured method on one stack.
@@ -239,7 +243,7 @@ const INTERRUPTED: u8 = 130;
 /// Runs the bench; on Ctrl-C or SIGTERM stops the current robot's nodes,
 /// removes its cgroups and exits with [`INTERRUPTED`].
 pub async fn run(a: &BenchArgs) -> anyhow::Result<ExitCode> {
-    let mut cur = Current::default();
+    let mut cur = Current::new(a.subtree_cpu_weight);
     let result = tokio::select! {
         r = bench(a, &mut cur) => Some(r),
         _ = crate::cli::shutdown_signal() => None,

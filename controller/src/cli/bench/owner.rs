@@ -13,6 +13,8 @@ use crate::cli::demo::PrivateRobot;
 /// The robot a bench step runs on, or none between steps.
 #[derive(Default)]
 pub struct Current {
+    /// CPU weight of each robot's subtree (`None`: the kernel's default).
+    cpu_weight: Option<u32>,
     robot: Option<PrivateRobot>,
     /// A robot still starting: its start runs as its own task, so an
     /// interruption mid-start does not drop a half-started runtime; [`close`]
@@ -28,15 +30,22 @@ pub struct Current {
 }
 
 impl Current {
+    pub fn new(cpu_weight: Option<u32>) -> Current {
+        Current {
+            cpu_weight,
+            ..Current::default()
+        }
+    }
+
     /// Closes the previous robot (if any), starts a fresh one with its files
     /// in `dir` and lends it out until the next [`start`](Current::start) or
     /// [`close`](Current::close).
     pub async fn start(&mut self, dir: &Path) -> anyhow::Result<&PrivateRobot> {
         self.close().await?;
-        let dir = dir.to_path_buf();
-        let handle = self
-            .starting
-            .insert(tokio::spawn(async move { PrivateRobot::start(&dir).await }));
+        let (dir, weight) = (dir.to_path_buf(), self.cpu_weight);
+        let handle = self.starting.insert(tokio::spawn(async move {
+            PrivateRobot::start(&dir, weight).await
+        }));
         let started = handle.await;
         self.starting = None;
         Ok(self.robot.insert(started??))
