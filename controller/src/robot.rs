@@ -264,19 +264,12 @@ impl<N: NodeApi> Robot for AgentRobot<N> {
         Box::pin(async move { self.node.start_app(app).await.map_err(wrap("start_app")) })
     }
 
-    fn freeze_app<'a>(
-        &'a self,
-        app: &'a str,
-        frozen: bool,
-    ) -> BoxFuture<'a, Result<(), RobotError>> {
-        Box::pin(async move {
-            if frozen {
-                self.node.freeze_app(app).await
-            } else {
-                self.node.thaw_app(app).await
-            }
-            .map_err(wrap("freeze_app"))
-        })
+    fn freeze_app<'a>(&'a self, app: &'a str) -> BoxFuture<'a, Result<(), RobotError>> {
+        Box::pin(async move { self.node.freeze_app(app).await.map_err(wrap("freeze_app")) })
+    }
+
+    fn thaw_app<'a>(&'a self, app: &'a str) -> BoxFuture<'a, Result<(), RobotError>> {
+        Box::pin(async move { self.node.thaw_app(app).await.map_err(wrap("thaw_app")) })
     }
 
     fn start_recording<'a>(

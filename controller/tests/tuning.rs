@@ -546,13 +546,13 @@ async fn remediation_can_freeze_the_non_core_app_and_record_its_inputs() {
     assert!(g.nodes.contains_key("/detector"), "frozen, not stopped");
     assert_eq!(
         f.sim.recordings(),
-        [("default-nav-spec".to_string(), vec!["/image".to_string()])].into()
+        [("default.nav-spec".to_string(), vec!["/image".to_string()])].into()
     );
     let events = f.events();
     assert!(
         events.iter().any(|(r, m)| r == "RecordingInputs"
             && m.contains("/image")
-            && m.contains("sim://default-nav-spec.bag")),
+            && m.contains("sim://default.nav-spec.bag")),
         "{events:#?}"
     );
     f.allow_tuning().await;
@@ -562,7 +562,7 @@ async fn remediation_can_freeze_the_non_core_app_and_record_its_inputs() {
     assert!(
         f.events().iter().any(|(r, m)| r == "RemediationUndone"
             && m.contains("thawed det")
-            && m.contains("recorded to sim://default-nav-spec.bag")),
+            && m.contains("recorded to sim://default.nav-spec.bag")),
         "{:#?}",
         f.events()
     );

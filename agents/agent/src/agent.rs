@@ -172,6 +172,7 @@ impl Agent {
                 let a = bg.clone();
                 let _ = tokio::task::spawn_blocking(move || {
                     a.scan_matches(None);
+                    a.enforce_frozen();
                     a.sample();
                     a.rotate_logs();
                 })
@@ -470,15 +471,18 @@ impl Agent {
         Ok(nodes)
     }
 
-    /// Stops every node of `app` gracefully (SIGINT → SIGTERM → SIGKILL) and
-    /// keeps it stopped, across agent restarts too, until [`Agent::start_app`].
+    /// Stops every node of `app` gracefully (SIGINT → SIGTERM → SIGKILL, the
+    /// nodes in parallel) and keeps it stopped, across agent restarts too,
+    /// until [`Agent::start_app`].
     pub async fn stop_app(&self, app: &str) -> Result<()> {
-        for node in self.app_nodes(app)? {
-            if let Some(rt) = self.st().nodes.get_mut(&node) {
+        let nodes = self.app_nodes(app)?;
+        for node in &nodes {
+            if let Some(rt) = self.st().nodes.get_mut(node) {
                 rt.persisted.stopped = true;
             }
-            self.stop_node(&node).await;
         }
+        // All at once, as roslaunch does: one slow node does not delay the rest.
+        futures_util::future::join_all(nodes.iter().map(|n| self.stop_node(n))).await;
         self.persist();
         self.emit(AgentEvent::AppStopped {
             app: app.to_owned(),
@@ -500,9 +504,10 @@ impl Agent {
     }
 
     /// Freezes every node of `app`: SIGSTOP to each process in its cgroups.
-    /// The processes keep their memory, sockets and ROS registrations but use
-    /// no CPU until [`Agent::thaw_app`] (or until they are stopped, which
-    /// thaws them first). The flag survives agent restarts.
+    /// The processes keep their memory and sockets but use no CPU until
+    /// [`Agent::thaw_app`] or [`Agent::stop_app`] (a stop thaws them first so
+    /// they get its SIGINT). The flag survives agent restarts and node
+    /// restarts: processes that show up in a frozen node are frozen too.
     pub fn freeze_app(&self, app: &str) -> Result<()> {
         self.set_frozen(app, true)?;
         self.emit(AgentEvent::AppFrozen {
@@ -521,12 +526,41 @@ impl Agent {
     }
 
     fn set_frozen(&self, app: &str, frozen: bool) -> Result<()> {
-        let sig = if frozen { libc::SIGSTOP } else { libc::SIGCONT };
-        for node in self.app_nodes(app)? {
-            self.update_node(&node, |p| p.frozen = frozen);
-            supervise::signal_cgroup(self, &node, sig);
+        let nodes = self.app_nodes(app)?;
+        let done = nodes
+            .iter()
+            .try_for_each(|node| self.set_node_frozen(node, frozen));
+        self.persist();
+        done
+    }
+
+    /// Sets a node's frozen flag and sends its processes SIGSTOP or SIGCONT,
+    /// both under the state lock, so [`Agent::enforce_frozen`] never sends a
+    /// SIGSTOP between a thaw's flag and its SIGCONT. The caller persists.
+    pub(crate) fn set_node_frozen(&self, node: &NodeName, frozen: bool) -> Result<()> {
+        let mut st = self.st();
+        if let Some(rt) = st.nodes.get_mut(node) {
+            rt.persisted.frozen = frozen;
         }
+        let sig = if frozen { libc::SIGSTOP } else { libc::SIGCONT };
+        supervise::signal_cgroup(self, node, sig)?;
         Ok(())
+    }
+
+    /// Keeps frozen nodes frozen: a process that appeared in a frozen node's
+    /// cgroup since (a restarted node, a node the stack added to a frozen
+    /// app, a process of an agent restart) gets its SIGSTOP here, every
+    /// `scanInterval`. SIGSTOP to a stopped process changes nothing. Runs
+    /// under the state lock (see [`Agent::set_node_frozen`]).
+    fn enforce_frozen(&self) {
+        let st = self.st();
+        for (node, _) in st
+            .nodes
+            .iter()
+            .filter(|(_, n)| n.persisted.frozen && !n.persisted.stopped)
+        {
+            let _ = supervise::signal_cgroup(self, node, libc::SIGSTOP);
+        }
     }
 
     /// App names.

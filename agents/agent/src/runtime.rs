@@ -189,6 +189,10 @@ impl NodeRuntime {
             }
         };
         let rt = Self::assemble(agent, dp, apps, registry, monitor)?;
+        rt.inner
+            .recordings
+            .stop_orphans(std::path::Path::new("/proc"))
+            .await;
         if let Some(mut s) = stream {
             let me = rt.clone();
             rt.spawn(async move {
@@ -490,15 +494,15 @@ impl NodeRuntime {
         let master = self.master_uri().ok_or_else(|| Error::NoDataPlane {
             what: "a rosbag recording".into(),
         })?;
-        let path = self.inner.recordings.start(name, topics, &master).await?;
-        if let Some(p) = &path {
+        let started = self.inner.recordings.start(name, topics, &master).await?;
+        if let Some((p, true)) = &started {
             self.emit(RuntimeEvent::Agent(AgentEvent::RecordingStarted {
                 name: name.to_owned(),
                 path: p.clone(),
                 topics: topics.to_vec(),
             }));
         }
-        Ok(path)
+        Ok(started.map(|(p, _)| p))
     }
 
     /// Stops the recording `name`; the finished bag's path, if one was running.

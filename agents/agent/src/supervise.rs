@@ -60,14 +60,18 @@ pub(crate) fn send_signal(pid: u32, sig: i32) -> bool {
 
 /// Sends `sig` to every process in `node`'s cgroup, and again to any that
 /// joined meanwhile (a child forked before a SIGSTOP landed), until a pass
-/// finds none new. Returns the pids signalled.
-pub(crate) fn signal_cgroup(agent: &Agent, node: &NodeName, sig: i32) -> Vec<u32> {
+/// finds none new. Returns the pids signalled; fails only when the cgroup
+/// cannot be read.
+pub(crate) fn signal_cgroup(
+    agent: &Agent,
+    node: &NodeName,
+    sig: i32,
+) -> configbot_cgroups::Result<Vec<u32>> {
     let mut done = std::collections::BTreeSet::new();
     for _ in 0..10 {
         let fresh: Vec<u32> = agent
             .backend()
-            .pids(node)
-            .unwrap_or_default()
+            .pids(node)?
             .into_iter()
             .filter(|p| !done.contains(p))
             .collect();
@@ -79,7 +83,7 @@ pub(crate) fn signal_cgroup(agent: &Agent, node: &NodeName, sig: i32) -> Vec<u32
             done.insert(pid);
         }
     }
-    done.into_iter().collect()
+    Ok(done.into_iter().collect())
 }
 
 fn send_raw(target: i32, sig: i32) -> bool {

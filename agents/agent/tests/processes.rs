@@ -277,6 +277,17 @@ async fn a_frozen_app_uses_no_cpu_until_thawed_and_still_stops_gracefully() {
             .iter()
             .all(|s| s.frozen == (s.app == "hogs"))
     );
+    // A node of a frozen app that restarts (here: killed, restarted by its
+    // Always policy) is frozen again.
+    let old = agent.backend().pids(&forker).unwrap();
+    for p in &old {
+        kill9(*p);
+    }
+    wait_until(T, "the forker restarted and frozen", || {
+        let now = agent.backend().pids(&forker).unwrap();
+        !now.is_empty() && now.iter().all(|p| !old.contains(p)) && stopped(&forker)
+    })
+    .await;
 
     agent.thaw_app("hogs").unwrap();
     wait_until(T, "hogs running", || {

@@ -648,3 +648,51 @@ async fn a_rosbag_recording_over_the_api_holds_the_topics_messages() {
     }
     server.abort();
 }
+
+/// A recorder a killed runtime left behind (here a stand-in `rosbag` that
+/// exits on SIGINT, as rosbag does after closing its bag) is stopped by the
+/// next runtime's `stop_orphans`; one writing elsewhere is left alone.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_recorder_left_by_a_killed_runtime_is_stopped() {
+    use configbot_agent::runtime::record::Recordings;
+    let tmp = tempfile::tempdir().unwrap();
+    let bags = tmp.path().join("bags");
+    std::fs::create_dir_all(&bags).unwrap();
+    let bags = std::fs::canonicalize(&bags).unwrap();
+    let fake = tmp.path().join("rosbag");
+    std::fs::write(
+        &fake,
+        "#!/bin/sh\ntrap 'exit 0' INT\nwhile :; do sleep 0.05; done\n",
+    )
+    .unwrap();
+    std::fs::set_permissions(&fake, std::os::unix::fs::PermissionsExt::from_mode(0o755)).unwrap();
+    let spawn = |dir: &std::path::Path| {
+        let mut c = std::process::Command::new(&fake);
+        c.args(["record", "-O"])
+            .arg(dir.join("x-1.bag"))
+            .arg("/scan");
+        common::rt::Proc::spawn(c)
+    };
+    let elsewhere = tmp.path().join("other");
+    let mut orphan = spawn(&bags);
+    let mut other = spawn(&elsewhere);
+    // (A SIGINT before the trap is set ends the script too.)
+    eventually("recorders started", T, || {
+        [orphan.pid(), other.pid()].iter().all(|p| {
+            std::fs::read_to_string(format!("/proc/{p}/cmdline"))
+                .is_ok_and(|c| c.contains("record"))
+        })
+    })
+    .await;
+    Recordings::new(bags.clone())
+        .stop_orphans(std::path::Path::new("/proc"))
+        .await;
+    assert!(
+        orphan.child.try_wait().unwrap().is_some(),
+        "the orphan recorder still runs"
+    );
+    assert!(
+        other.child.try_wait().unwrap().is_none(),
+        "a recorder writing elsewhere was stopped"
+    );
+}

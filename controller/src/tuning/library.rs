@@ -69,7 +69,7 @@ pub fn context(
 }
 
 /// FNV-1a: stable across builds and platforms (unlike std's hasher).
-fn fnv(text: &str) -> u64 {
+pub(crate) fn fnv(text: &str) -> u64 {
     let mut h: u64 = 0xcbf2_9ce4_8422_2325;
     for b in text.bytes() {
         h ^= u64::from(b);

@@ -162,33 +162,73 @@ pub enum State {
         config: ResourceConfig,
     },
     /// Pause the non-core apps (and start recording their inputs).
+    /// (Runs persisted before freezing existed say `remediateStop`/`apps`.)
+    #[serde(alias = "remediateStop")]
     RemediatePause {
+        #[serde(alias = "apps")]
         remedy: Remedy,
     },
     /// Lift every limit: the core nodes get the paused apps' CPU.
     RemediateApply {
+        #[serde(alias = "apps")]
         remedy: Remedy,
     },
     Remediating {
+        #[serde(alias = "apps")]
         remedy: Remedy,
     },
     /// Resume the paused apps (and stop the recording).
     RemediateUndo {
+        #[serde(alias = "apps")]
         remedy: Remedy,
     },
 }
 
 /// What a remediation did to the non-core apps, kept until it is undone.
 #[derive(Debug, Clone, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(from = "RemedyRepr")]
 pub struct Remedy {
     /// The paused apps.
     pub apps: Vec<String>,
     /// Frozen (SIGSTOP) rather than stopped.
-    #[serde(default)]
     pub freeze: bool,
     /// Record a rosbag of the paused apps' inputs while they are paused.
-    #[serde(default)]
     pub record: bool,
+}
+
+/// A persisted [`Remedy`]: the struct, or the bare app list (stopped, not
+/// recorded) of runs persisted before freezing and recording existed.
+#[derive(Deserialize)]
+#[serde(untagged)]
+enum RemedyRepr {
+    Full {
+        apps: Vec<String>,
+        #[serde(default)]
+        freeze: bool,
+        #[serde(default)]
+        record: bool,
+    },
+    Apps(Vec<String>),
+}
+
+impl From<RemedyRepr> for Remedy {
+    fn from(r: RemedyRepr) -> Remedy {
+        match r {
+            RemedyRepr::Full {
+                apps,
+                freeze,
+                record,
+            } => Remedy {
+                apps,
+                freeze,
+                record,
+            },
+            RemedyRepr::Apps(apps) => Remedy {
+                apps,
+                ..Remedy::default()
+            },
+        }
+    }
 }
 
 /// A rosbag recording of the paused apps' inputs, as the robot reports it.
@@ -361,8 +401,8 @@ pub enum Input {
     Measured(MeasureReport),
     /// The apps are paused; the recording of their inputs, if one started.
     AppsPaused(Option<Recording>),
-    /// The apps run again; the finished recording, if there was one.
-    AppsResumed(Option<Recording>),
+    /// The apps run again; the finished recording's path, if there was one.
+    AppsResumed(Option<String>),
     Trigger(Trigger),
 }
 
@@ -724,9 +764,7 @@ pub fn step(mut run: Run, input: Input, env: &Env<'_>) -> (Run, Vec<Output>) {
             }
         }
         (State::RemediateUndo { remedy }, Input::AppsResumed(rec)) => {
-            let saved = rec.map_or(String::new(), |r| {
-                format!("; inputs recorded to {}", r.path)
-            });
+            let saved = rec.map_or(String::new(), |p| format!("; inputs recorded to {p}"));
             out.push(normal(
                 "RemediationUndone",
                 format!(

@@ -1254,3 +1254,51 @@ fn a_remediation_records_what_the_paused_apps_subscribe_to() {
     assert!(outcome::paused_inputs(&stack(), &g, &["nav".into()]).is_empty());
     assert!(outcome::paused_inputs(&stack(), &g, &[]).is_empty());
 }
+
+#[test]
+fn a_remediation_persisted_before_freezing_existed_still_reads() {
+    let old: State =
+        serde_json::from_value(serde_json::json!({"state": "remediateStop", "apps": ["det"]}))
+            .unwrap();
+    assert_eq!(
+        old,
+        State::RemediatePause {
+            remedy: paused("det")
+        }
+    );
+    let undo: State =
+        serde_json::from_value(serde_json::json!({"state": "remediateUndo", "apps": ["det"]}))
+            .unwrap();
+    assert_eq!(
+        undo,
+        State::RemediateUndo {
+            remedy: paused("det")
+        }
+    );
+    // And today's form round-trips.
+    let now = State::Remediating {
+        remedy: Remedy {
+            apps: vec!["det".into()],
+            freeze: true,
+            record: true,
+        },
+    };
+    let back: State = serde_json::from_value(serde_json::to_value(&now).unwrap()).unwrap();
+    assert_eq!(back, now);
+}
+
+#[test]
+fn recording_names_are_unique_and_fit_a_file_name() {
+    assert_eq!(outcome::recording_name("default", "nav"), "default.nav");
+    assert_ne!(
+        outcome::recording_name("a-b", "c"),
+        outcome::recording_name("a", "b-c")
+    );
+    let long = "x".repeat(253);
+    let (a, b) = (
+        outcome::recording_name("default", &long),
+        outcome::recording_name("default", &format!("{}y", &long[1..])),
+    );
+    assert!(a.len() <= 200 && b.len() <= 200, "{} {}", a.len(), b.len());
+    assert_ne!(a, b);
+}

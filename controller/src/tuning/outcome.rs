@@ -241,6 +241,18 @@ pub fn remediate(env: &Env<'_>, ctx: Option<&ProfileContext>, out: &mut Vec<Outp
     State::RemediatePause { remedy }
 }
 
+/// The name of a spec's remediation recording (the bag's file name starts
+/// with it): `<namespace>.<name>`, unique because a namespace has no `.`;
+/// past 200 characters cut, with a hash of the whole to keep it unique.
+pub fn recording_name(namespace: &str, name: &str) -> String {
+    let full = format!("{namespace}.{name}");
+    if full.len() <= 200 {
+        return full;
+    }
+    let cut: String = full.chars().take(183).collect();
+    format!("{cut}-{:016x}", library::fnv(&full))
+}
+
 /// The topics a remediation records: every topic a node of the paused
 /// `apps` subscribes to, by the live graph (sorted, once each).
 pub fn paused_inputs(stack: &RobotStack, graph: &Graph, apps: &[String]) -> Vec<String> {

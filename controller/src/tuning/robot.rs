@@ -95,12 +95,10 @@ pub trait Robot: Send + Sync {
     fn stop_app<'a>(&'a self, app: &'a str) -> BoxFuture<'a, Result<(), RobotError>>;
     /// Start every node of `app` again.
     fn start_app<'a>(&'a self, app: &'a str) -> BoxFuture<'a, Result<(), RobotError>>;
-    /// Freeze (SIGSTOP) every node of `app`, or thaw it (`frozen` false).
-    fn freeze_app<'a>(
-        &'a self,
-        app: &'a str,
-        frozen: bool,
-    ) -> BoxFuture<'a, Result<(), RobotError>>;
+    /// Freeze (SIGSTOP) every node of `app`.
+    fn freeze_app<'a>(&'a self, app: &'a str) -> BoxFuture<'a, Result<(), RobotError>>;
+    /// Thaw (SIGCONT) every node of `app`.
+    fn thaw_app<'a>(&'a self, app: &'a str) -> BoxFuture<'a, Result<(), RobotError>>;
     /// Start a rosbag recording of `topics` named `name`: the bag's path,
     /// `None` when the robot cannot record (no rosbag) or `topics` is empty.
     fn start_recording<'a>(

@@ -19,7 +19,7 @@ use tokio::sync::broadcast;
 use tokio::task::JoinHandle;
 
 use super::library::{self, CONTEXT_LABELS};
-use super::machine::{self, Effect, Env, Input, Output, Recording, Run, State};
+use super::machine::{self, Effect, Env, Input, Output, Recording, Remedy, Run, State};
 use super::monitor::{self, Trigger};
 use super::outcome;
 use super::robot::{Clock, Robot, RobotError, RobotEvent};
@@ -199,6 +199,20 @@ impl Runner {
         let obj = match store.get(Kind::PerformanceSpec, &self.ns, &self.name) {
             Ok(Some(o)) => o,
             Ok(None) => {
+                // A spec deleted mid-remediation leaves nothing paused behind.
+                if let Some(
+                    State::RemediatePause { remedy }
+                    | State::RemediateApply { remedy }
+                    | State::Remediating { remedy }
+                    | State::RemediateUndo { remedy },
+                ) = run.as_ref().map(|r| &r.state)
+                    && let Err(e) = self.resume(remedy, &remedy.apps).await
+                {
+                    eprintln!(
+                        "configbot: {}/{} deleted while remediating; resuming its apps: {e}",
+                        self.ns, self.name
+                    );
+                }
                 let _ = store.delete_state(STATE_SCOPE, &key);
                 return Ok(None);
             }
@@ -282,7 +296,7 @@ impl Runner {
         self.graph_interval_ms = (spec.spec.monitoring.graph_interval_seconds * 1000.0) as u64;
         let effect = machine::effect(&run, &env);
         let labels = labels(&spec, &stack);
-        let input = match self.execute(effect, &run, &env, &stack, &labels).await {
+        let input = match self.execute(effect, &run, &stack, &labels).await {
             Ok(i) => i,
             Err(e) => return Err(fail(e, Some(run))),
         };
@@ -308,10 +322,6 @@ impl Runner {
                 let l = [self.ns.as_str(), self.name.as_str()];
                 match reason {
                     "LibraryHit" => m.library_hits.with_label_values(&l).inc(),
-                    "Remediated" => m
-                        .remediations
-                        .with_label_values(&[l[0], l[1], "stop_non_core"])
-                        .inc(),
                     "RemediationUndone" => m
                         .remediations
                         .with_label_values(&[l[0], l[1], "undo"])
@@ -353,7 +363,6 @@ impl Runner {
         &mut self,
         effect: Effect,
         run: &Run,
-        env: &Env<'_>,
         stack: &RobotStack,
         labels: &std::collections::BTreeMap<String, String>,
     ) -> Result<Input, RunnerError> {
@@ -444,40 +453,63 @@ impl Runner {
                 }
                 for a in &remedy.apps {
                     if remedy.freeze {
-                        robot.freeze_app(a, true).await?;
+                        robot.freeze_app(a).await?;
                     } else {
                         robot.stop_app(a).await?;
                     }
                 }
-                let _ = env;
+                let action = if remedy.freeze {
+                    "freeze_non_core"
+                } else {
+                    "stop_non_core"
+                };
+                self.ctx
+                    .metrics
+                    .tuning
+                    .remediations
+                    .with_label_values(&[self.ns.as_str(), self.name.as_str(), action])
+                    .inc();
                 Input::AppsPaused(recording)
             }
             Effect::ResumeApps(remedy) => {
-                for a in &remedy.apps {
-                    if remedy.freeze {
-                        robot.freeze_app(a, false).await?;
-                    } else {
-                        robot.start_app(a).await?;
-                    }
-                }
-                let mut recording = None;
-                if remedy.record
-                    && let Some(path) = robot.stop_recording(&self.recording_name()).await?
-                {
-                    recording = Some(Recording {
-                        path,
-                        topics: Vec::new(),
-                    });
-                }
-                Input::AppsResumed(recording)
+                // An app the stack no longer has is no longer the robot's to resume.
+                let apps: Vec<String> = remedy
+                    .apps
+                    .iter()
+                    .filter(|a| stack.spec.apps.iter().any(|s| s.name == **a))
+                    .cloned()
+                    .collect();
+                Input::AppsResumed(self.resume(&remedy, &apps).await?)
             }
         })
     }
 
-    /// The rosbag recording of this spec's remediation (a DNS-1123 name plus
-    /// its namespace is a valid recording name).
+    /// Undoes a remediation: stops its recording, then starts or thaws
+    /// `apps` (trying every one; the first error is returned); the bag's path.
+    async fn resume(&self, remedy: &Remedy, apps: &[String]) -> Result<Option<String>, RobotError> {
+        let robot = &self.ctx.robot;
+        let bag = if remedy.record {
+            robot.stop_recording(&self.recording_name()).await?
+        } else {
+            None
+        };
+        let mut first_error = None;
+        for a in apps {
+            let r = if remedy.freeze {
+                robot.thaw_app(a).await
+            } else {
+                robot.start_app(a).await
+            };
+            if let Err(e) = r {
+                first_error.get_or_insert(e);
+            }
+        }
+        first_error.map_or(Ok(bag), Err)
+    }
+
+    /// The rosbag recording of this spec's remediations.
     fn recording_name(&self) -> String {
-        format!("{}-{}", self.ns, self.name)
+        outcome::recording_name(&self.ns, &self.name)
     }
 
     /// Read the graph; a trigger when the context differs from the run's.

@@ -226,6 +226,21 @@ impl SimRobot {
         1.0 + self.noise * (2.0 * u - 1.0)
     }
 
+    /// A frozen app keeps its nodes in the graph but does no work.
+    fn set_frozen(&self, app: &str, frozen: bool) -> Result<(), RobotError> {
+        let mut s = self.lock();
+        if !s.nodes.iter().any(|n| n.app == app) {
+            let op = if frozen { "freeze_app" } else { "thaw_app" };
+            return Err(RobotError::new(op, format!("unknown app {app}")));
+        }
+        if frozen {
+            s.frozen.insert(app.into());
+        } else {
+            s.frozen.remove(app);
+        }
+        Ok(())
+    }
+
     fn set_app(&self, app: &str, stopped: bool) -> Result<(), RobotError> {
         let op = if stopped { "stop_app" } else { "start_app" };
         let before = self.graph_now();
@@ -487,23 +502,12 @@ impl Robot for SimRobot {
         Box::pin(async move { self.set_app(app, false) })
     }
 
-    fn freeze_app<'a>(
-        &'a self,
-        app: &'a str,
-        frozen: bool,
-    ) -> BoxFuture<'a, Result<(), RobotError>> {
-        Box::pin(async move {
-            let mut s = self.lock();
-            if !s.nodes.iter().any(|n| n.app == app) {
-                return Err(RobotError::new("freeze_app", format!("unknown app {app}")));
-            }
-            if frozen {
-                s.frozen.insert(app.into());
-            } else {
-                s.frozen.remove(app);
-            }
-            Ok(())
-        })
+    fn freeze_app<'a>(&'a self, app: &'a str) -> BoxFuture<'a, Result<(), RobotError>> {
+        Box::pin(async move { self.set_frozen(app, true) })
+    }
+
+    fn thaw_app<'a>(&'a self, app: &'a str) -> BoxFuture<'a, Result<(), RobotError>> {
+        Box::pin(async move { self.set_frozen(app, false) })
     }
 
     fn start_recording<'a>(

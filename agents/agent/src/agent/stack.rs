@@ -67,7 +67,7 @@ impl Agent {
     /// Replaces the stack at run time and returns what changed. Removed
     /// nodes are stopped (SIGINT → SIGTERM → SIGKILL, `match` nodes too) and
     /// their cgroups removed; changed nodes restart; new nodes start (stopped
-    /// if their app is stopped). Limits of removed nodes leave the committed
+    /// if their app is stopped, frozen if it is frozen). Limits of removed nodes leave the committed
     /// config; the committed config keeps the node set it was made for, so a
     /// later agent restart with this stack lifts core limits (see `state`).
     pub async fn set_stack(&self, stack: StackSpec) -> Result<StackDiff> {
@@ -86,6 +86,13 @@ impl Agent {
                 c.limits.remove(node);
             }
         }
+        // A restarted node of a frozen app is frozen again once it runs.
+        let refreeze: Vec<NodeName> = diff
+            .restarted
+            .iter()
+            .filter(|n| self.st().nodes.get(*n).is_some_and(|n| n.persisted.frozen))
+            .cloned()
+            .collect();
         for node in &diff.restarted {
             self.stop_node(node).await;
         }
@@ -104,6 +111,10 @@ impl Agent {
                 .nodes
                 .values()
                 .any(|n| n.app == *app && n.persisted.stopped);
+            let app_frozen = st
+                .nodes
+                .values()
+                .any(|n| n.app == *app && n.persisted.frozen);
             let matcher = match &spec.source {
                 NodeSource::Match(m) => Matcher::new(m),
                 NodeSource::Run(_) => None,
@@ -123,6 +134,7 @@ impl Agent {
                             matcher,
                             persisted: PersistedNode {
                                 stopped: app_stopped,
+                                frozen: app_frozen,
                                 ..PersistedNode::default()
                             },
                             supervisor: None,
@@ -136,6 +148,11 @@ impl Agent {
             }
         }
         self.st().stack = stack;
+        for node in &refreeze {
+            if let Some(rt) = self.st().nodes.get_mut(node) {
+                rt.persisted.frozen = true;
+            }
+        }
         for node in diff.added.iter().chain(&diff.restarted) {
             let stopped = self
                 .st()
@@ -153,15 +170,16 @@ impl Agent {
 
     /// Stops a node's supervisor and every process in its cgroup.
     pub(crate) async fn stop_node(&self, node: &NodeName) {
-        // A frozen process takes no signal but SIGKILL: thaw it for a graceful stop.
+        // A stopped process keeps SIGINT and SIGTERM pending until SIGCONT:
+        // thaw a frozen node so its stop is graceful.
         if self
             .st()
             .nodes
             .get(node)
             .is_some_and(|n| n.persisted.frozen)
         {
-            self.update_node(node, |p| p.frozen = false);
-            supervise::signal_cgroup(self, node, libc::SIGCONT);
+            let _ = self.set_node_frozen(node, false);
+            self.persist();
         }
         let sup = self
             .st()

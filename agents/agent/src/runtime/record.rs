@@ -4,7 +4,10 @@
 //! <topics>` against the runtime's master, in its own process group, with its
 //! output in `<dir>/<name>.log`; stopping sends SIGINT so rosbag closes the
 //! bag (it writes `<file>.active` and renames it when done), SIGKILL after
-//! [`STOP_TIMEOUT`]. One recording per name.
+//! [`STOP_TIMEOUT`]. One recording per name. Recordings live as long as the
+//! runtime: a runtime that stops stops them, and one that starts stops any
+//! that a killed runtime left running ([`Recordings::stop_orphans`]), so no
+//! bag grows unowned.
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -41,11 +44,14 @@ pub fn find_rosbag() -> Option<PathBuf> {
         .find(|p| p.is_file())
 }
 
+/// Longest recording name (the file name adds `-<ms>.bag`, within 255 bytes).
+pub const MAX_NAME: usize = 200;
+
 /// A recording name becomes a file name: letters, digits, `.`, `_`, `-`,
-/// at most 64, not starting with `.`.
+/// at most [`MAX_NAME`], not starting with `.`.
 pub fn valid_name(name: &str) -> bool {
     !name.is_empty()
-        && name.len() <= 64
+        && name.len() <= MAX_NAME
         && !name.starts_with('.')
         && name
             .chars()
@@ -61,18 +67,19 @@ impl Recordings {
         }
     }
 
-    /// Starts recording `topics` as `name` against `master_uri`. `None` when
-    /// there is nothing to record or rosbag is not installed; a recording of
-    /// that name already running is kept and its file returned.
+    /// Starts recording `topics` as `name` against `master_uri`: the bag's
+    /// path and whether this call started it. `None` when there is nothing
+    /// to record or rosbag is not installed; a recording of that name
+    /// already running is kept and its file returned.
     pub async fn start(
         &self,
         name: &str,
         topics: &[String],
         master_uri: &str,
-    ) -> Result<Option<PathBuf>> {
+    ) -> Result<Option<(PathBuf, bool)>> {
         if !valid_name(name) {
             return Err(Error::InvalidRecording(format!(
-                "recording name {name:?}: use letters, digits, '.', '_' and '-' (at most 64)"
+                "recording name {name:?}: use letters, digits, '.', '_' and '-' (at most {MAX_NAME})"
             )));
         }
         if let Some(t) = topics.iter().find(|t| !t.starts_with('/')) {
@@ -82,7 +89,7 @@ impl Recordings {
         }
         let mut active = self.active.lock().await;
         if let Some(a) = active.get(name) {
-            return Ok(Some(a.path.clone()));
+            return Ok(Some((a.path.clone(), false)));
         }
         let (Some(rosbag), false) = (find_rosbag(), topics.is_empty()) else {
             return Ok(None);
@@ -92,8 +99,10 @@ impl Recordings {
             source: e,
         };
         std::fs::create_dir_all(&self.dir).map_err(|e| io(e, &self.dir))?;
-        let path = self.dir.join(format!("{name}-{}.bag", super::unix_ms()));
-        let log_path = self.dir.join(format!("{name}.log"));
+        // Canonical, as `stop_orphans` finds it in the command line.
+        let dir = std::fs::canonicalize(&self.dir).map_err(|e| io(e, &self.dir))?;
+        let path = dir.join(format!("{name}-{}.bag", super::unix_ms()));
+        let log_path = dir.join(format!("{name}.log"));
         let log = crate::spawn::open_log(&log_path)?;
         let err = log.try_clone().map_err(|e| io(e, &log_path))?;
         let mut cmd = Command::new(&rosbag);
@@ -102,7 +111,7 @@ impl Recordings {
             .arg(&path)
             .args(topics)
             .env("ROS_MASTER_URI", master_uri)
-            .env("ROS_HOME", &self.dir)
+            .env("ROS_HOME", &dir)
             .stdin(std::process::Stdio::null())
             .stdout(log)
             .stderr(err)
@@ -119,13 +128,45 @@ impl Recordings {
                 path: path.clone(),
             },
         );
-        Ok(Some(path))
+        Ok(Some((path, true)))
     }
 
     /// Stops recording `name`; the bag's path, or `None` if none was running.
     pub async fn stop(&self, name: &str) -> Option<PathBuf> {
         let a = self.active.lock().await.remove(name)?;
         Some(finish(a).await)
+    }
+
+    /// Stops (SIGINT, so their bags close) the `rosbag record` processes
+    /// writing into this directory that no runtime owns: those of a runtime
+    /// that was killed. Call before the first [`Recordings::start`].
+    pub async fn stop_orphans(&self, proc_root: &Path) {
+        let Ok(dir) = std::fs::canonicalize(&self.dir) else {
+            return; // never recorded here
+        };
+        let orphans: Vec<u32> = crate::procfs::list_procs(proc_root)
+            .into_iter()
+            .filter(|p| is_recorder_in(&p.cmdline, &dir))
+            .map(|p| p.pid)
+            .collect();
+        for pid in &orphans {
+            // Each recorder leads its own process group (see `start`).
+            let group = -i32::try_from(*pid).unwrap_or(i32::MAX);
+            #[allow(unsafe_code)]
+            // SAFETY: kill(2) takes plain integers and touches no memory of ours.
+            unsafe {
+                libc::kill(group, libc::SIGINT);
+            }
+        }
+        // Gone, or a zombie (`read_proc` is `None` for both).
+        let deadline = tokio::time::Instant::now() + STOP_TIMEOUT;
+        while orphans
+            .iter()
+            .any(|p| crate::procfs::read_proc(proc_root, *p).is_some())
+            && tokio::time::Instant::now() < deadline
+        {
+            tokio::time::sleep(Duration::from_millis(50)).await;
+        }
     }
 
     /// Stops every recording (runtime shutdown).
@@ -135,6 +176,15 @@ impl Recordings {
             finish(a).await;
         }
     }
+}
+
+/// Whether a command line (arguments joined by spaces) is a `rosbag record`
+/// writing into `dir`.
+fn is_recorder_in(cmdline: &str, dir: &Path) -> bool {
+    let mut args = cmdline.split(' ');
+    args.any(|a| a.ends_with("rosbag"))
+        && cmdline.contains(" record ")
+        && cmdline.contains(&format!(" -O {}/", dir.display()))
 }
 
 async fn finish(mut a: Active) -> PathBuf {
@@ -169,9 +219,24 @@ mod tests {
     #[test]
     fn names_stay_inside_the_directory() {
         assert!(valid_name("remedied-nav_1.0"));
-        for bad in ["", ".hidden", "../x", "a/b", "a b", &"x".repeat(65)] {
+        for bad in ["", ".hidden", "../x", "a/b", "a b", &"x".repeat(MAX_NAME + 1)] {
             assert!(!valid_name(bad), "{bad:?}");
         }
+    }
+
+    #[test]
+    fn recorders_are_told_by_their_output_directory() {
+        let dir = Path::new("/var/lib/configbot/bags");
+        let ours =
+            "/usr/bin/python3 /usr/bin/rosbag record -O /var/lib/configbot/bags/x-1.bag /scan";
+        assert!(is_recorder_in(ours, dir));
+        assert!(!is_recorder_in(ours, Path::new("/tmp/bags")));
+        let play = "/usr/bin/python3 /usr/bin/rosbag play /var/lib/configbot/bags/x-1.bag";
+        assert!(!is_recorder_in(play, dir));
+        assert!(!is_recorder_in(
+            "vim -O /var/lib/configbot/bags/x record",
+            dir
+        ));
     }
 
     #[tokio::test]
