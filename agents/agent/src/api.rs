@@ -101,10 +101,7 @@ pub fn router(rt: NodeRuntime, token: Option<String>) -> Router {
         .route("/v1/config", put(put_config))
         .route("/v1/measure", post(measure))
         .route("/v1/graph", get(graph))
-        .route("/v1/apps/{app}/stop", post(stop_app))
-        .route("/v1/apps/{app}/start", post(start_app))
-        .route("/v1/apps/{app}/freeze", post(freeze_app))
-        .route("/v1/apps/{app}/thaw", post(thaw_app))
+        .route("/v1/apps/{app}/{action}", post(app_action))
         .route(
             "/v1/recordings/{name}",
             put(start_recording).delete(stop_recording),
@@ -198,36 +195,23 @@ async fn graph(State(rt): State<NodeRuntime>) -> Result<impl IntoResponse, ApiEr
     Ok(Json(rt.graph().await?))
 }
 
-async fn stop_app(
+/// `POST /v1/apps/{app}/{action}`: stop, start, freeze or thaw an app.
+async fn app_action(
     State(rt): State<NodeRuntime>,
-    UrlPath(app): UrlPath<String>,
+    UrlPath((app, action)): UrlPath<(String, String)>,
 ) -> Result<impl IntoResponse, ApiError> {
-    rt.stop_app(&app).await?;
-    Ok(Json(json!({ "app": app, "stopped": true })))
-}
-
-async fn start_app(
-    State(rt): State<NodeRuntime>,
-    UrlPath(app): UrlPath<String>,
-) -> Result<impl IntoResponse, ApiError> {
-    rt.start_app(&app).await?;
-    Ok(Json(json!({ "app": app, "started": true })))
-}
-
-async fn freeze_app(
-    State(rt): State<NodeRuntime>,
-    UrlPath(app): UrlPath<String>,
-) -> Result<impl IntoResponse, ApiError> {
-    rt.freeze_app(&app).await?;
-    Ok(Json(json!({ "app": app, "frozen": true })))
-}
-
-async fn thaw_app(
-    State(rt): State<NodeRuntime>,
-    UrlPath(app): UrlPath<String>,
-) -> Result<impl IntoResponse, ApiError> {
-    rt.thaw_app(&app).await?;
-    Ok(Json(json!({ "app": app, "frozen": false })))
+    match action.as_str() {
+        "stop" => rt.stop_app(&app).await?,
+        "start" => rt.start_app(&app).await?,
+        "freeze" => rt.freeze_app(&app).await?,
+        "thaw" => rt.thaw_app(&app).await?,
+        other => {
+            return Err(ApiError::NotFound(format!(
+                "no app action {other:?} (stop, start, freeze, thaw)"
+            )));
+        }
+    }
+    Ok(Json(json!({ "app": app, "done": action })))
 }
 
 /// Body of `PUT /v1/recordings/{name}`.

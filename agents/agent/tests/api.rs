@@ -155,6 +155,12 @@ async fn endpoints_inventory_config_metrics_events() {
     assert!(agent.backend().pids(&node("/sleeper")).unwrap().is_empty());
     let (code, _) = call(&app, "POST", "/v1/apps/a/start", "", None).await;
     assert_eq!(code, StatusCode::OK);
+    let (code, _) = call(&app, "POST", "/v1/apps/a/pause", "", None).await;
+    assert_eq!(code, StatusCode::NOT_FOUND, "no such action");
+    for action in ["freeze", "thaw"] {
+        let (code, _) = call(&app, "POST", &format!("/v1/apps/a/{action}"), "", None).await;
+        assert_eq!(code, StatusCode::OK, "{action}");
+    }
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

@@ -219,7 +219,14 @@ mod tests {
     #[test]
     fn names_stay_inside_the_directory() {
         assert!(valid_name("remedied-nav_1.0"));
-        for bad in ["", ".hidden", "../x", "a/b", "a b", &"x".repeat(MAX_NAME + 1)] {
+        for bad in [
+            "",
+            ".hidden",
+            "../x",
+            "a/b",
+            "a b",
+            &"x".repeat(MAX_NAME + 1),
+        ] {
             assert!(!valid_name(bad), "{bad:?}");
         }
     }
