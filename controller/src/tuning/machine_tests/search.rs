@@ -1,0 +1,400 @@
+//! The search inside a run: early-stopped (censored) trials, verification of
+//! the best trial and its back-off, adaptive settling and draining, the
+//! near-best rule, and when safe exploration applies.
+
+use super::*;
+use crate::tuning::{knobs, search};
+
+#[test]
+fn early_stop_is_a_censored_observation() {
+    let (st, sp) = (stack(), spec(0.0, 5));
+    let env = env(&st, &sp);
+    let (run, _) = step(
+        with(State::Baseline {
+            graph: graph(),
+            prior: None,
+        }),
+        report(&BAD, 5.0),
+        &env,
+    );
+    assert_eq!(run.knobs.knobs.len(), 3, "{:?}", run.knobs);
+    let State::TrialApply { .. } = run.state else {
+        panic!("{:?}", run.state)
+    };
+    let (run, _) = step(run, Input::Applied, &env);
+    let (run, _) = step(run, report(&[10.0, 12.0], 5.0), &env);
+    assert_eq!(run.trials.len(), 1);
+    assert!(run.trials[0].censored);
+    assert!(!run.trials[0].eval.feasible);
+    let o = run.optimizer.as_ref().unwrap();
+    assert_eq!(o.observations().len(), 2, "baseline and the censored trial");
+    assert!(o.observations()[1].censored);
+    assert_eq!(name(&run.state), "TrialApply", "the next trial");
+}
+
+#[test]
+fn best_failing_verification_tries_the_next_best_then_unsat() {
+    let (st, sp) = (stack(), spec(0.0, 5));
+    let env = env(&st, &sp);
+    let mut run = with(State::Verify {
+        candidate: Candidate::Trial { index: 1 },
+        config: cfg(),
+    });
+    let Input::Measured(good) = report(&OK, 8.0) else {
+        unreachable!()
+    };
+    let Input::Measured(better) = report(&OK, 9.0) else {
+        unreachable!()
+    };
+    for r in [&good, &better] {
+        run.trials.push(TrialRecord {
+            config: cfg(),
+            x: vec![],
+            eval: measure::evaluate(&env.defs(), r, Default::default()),
+            censored: false,
+        });
+    }
+    let (run, out) = step(run, report(&[20.0; 10], 5.0), &env);
+    assert_eq!(reasons(&out), vec!["VerificationFailed"]);
+    assert_eq!(
+        run.state,
+        State::VerifyApply {
+            candidate: Candidate::Trial { index: 0 },
+            config: cfg()
+        }
+    );
+    let (run, _) = step(run, Input::Applied, &env);
+    let (run, out) = step(run, report(&[20.0; 10], 5.0), &env);
+    assert_eq!(reasons(&out), vec!["VerificationFailed", "Unsat"]);
+    assert_eq!(name(&run.state), "UnsatApply");
+}
+
+/// A run whose knobs are /detector's CPU (non-core, 0.1..2) and /planner's
+/// (core), with trials 0 and 1 feasible (objective 0.8 and 0.9 of `det`).
+fn with_two_trials(env: &Env<'_>) -> Run {
+    let knob = |node: &str, restricts_non_core| knobs::KnobDef {
+        name: knobs::cpu_knob_name(node),
+        target: knobs::KnobTarget::Cpu { node: node.into() },
+        min: 0.1,
+        max: 2.0,
+        restricts_non_core,
+    };
+    let mut run = with(State::Observe {
+        trigger: Trigger::SpecChanged,
+        skip_library: false,
+    });
+    run.knobs = KnobSpace {
+        knobs: vec![knob("/detector", true), knob("/planner", false)],
+        period_micros: 20_000,
+    };
+    for (x, det) in [([1.0, 1.5], 8.0), ([1.9, 1.5], 9.0)] {
+        let Input::Measured(r) = report(&OK, det) else {
+            unreachable!()
+        };
+        run.trials.push(TrialRecord {
+            config: run.knobs.to_config(&x),
+            x: x.to_vec(),
+            eval: measure::evaluate(&env.defs(), &r, Default::default()),
+            censored: false,
+        });
+    }
+    run
+}
+
+/// Verify the run's current candidate: apply, settle, measure `cmd`.
+fn verify(run: Run, env: &Env<'_>, cmd: &[f64]) -> (Run, Vec<Output>) {
+    assert_eq!(name(&run.state), "VerifyApply");
+    let (run, _) = step(run, Input::Applied, env);
+    assert_eq!(name(&run.state), "VerifySettle", "settles before measuring");
+    let (run, _) = step(run, Input::Slept, env);
+    assert_eq!(name(&run.state), "Verify");
+    step(run, report(cmd, 9.0), env)
+}
+
+#[test]
+fn a_best_trial_failing_verification_is_backed_off_before_the_next_best() {
+    let (st, sp) = (stack(), spec(1.0, 5));
+    let env = env(&st, &sp);
+    let mut run = with_two_trials(&env);
+    let mut out = Vec::new();
+    run.state = finish(&mut run, &env, &env.defs(), &mut out);
+    assert_eq!(
+        run.state,
+        State::VerifyApply {
+            candidate: Candidate::Trial { index: 1 },
+            config: run.trials[1].config.clone()
+        }
+    );
+    // Three back-off steps of /detector's CPU, /planner's kept: 0.1 + f × 1.8.
+    let mut fractions = Vec::new();
+    for _ in 0..3 {
+        let (r, out) = verify(run, &env, &BAD);
+        run = r;
+        assert_eq!(reasons(&out), vec!["VerificationFailed", "BackingOff"]);
+        let State::VerifyApply {
+            candidate: Candidate::Backoff { index: 1, fraction },
+            config,
+        } = &run.state
+        else {
+            panic!("{:?}", run.state)
+        };
+        let want = 0.1 + fraction * 1.8;
+        assert!((config.cpu["/detector"] - want).abs() < 1e-3, "{config:?}");
+        assert_eq!(config.cpu["/planner"], 1.5);
+        fractions.push(*fraction);
+    }
+    let want = [0.8, 0.64, 0.512];
+    assert!(
+        fractions
+            .iter()
+            .zip(want)
+            .all(|(f, w)| (f - w).abs() < 1e-9)
+    );
+    // The last step failed too: the next best trial, as measured, and no back-off for it.
+    let (run, out) = verify(run, &env, &BAD);
+    assert_eq!(reasons(&out), vec!["VerificationFailed"]);
+    assert_eq!(
+        run.state,
+        State::VerifyApply {
+            candidate: Candidate::Trial { index: 0 },
+            config: run.trials[0].config.clone()
+        }
+    );
+    assert_eq!(run.rejected, vec![1]);
+    let (run, out) = verify(run, &env, &BAD);
+    assert_eq!(reasons(&out), vec!["VerificationFailed", "Unsat"]);
+    assert_eq!(run.rejected, vec![1, 0]);
+}
+
+#[test]
+fn a_backed_off_config_that_holds_is_monitored_learned_and_shown() {
+    let (st, sp) = (stack(), spec(1.0, 5));
+    let env = env(&st, &sp);
+    let mut run = with_two_trials(&env);
+    let mut out = Vec::new();
+    run.state = finish(&mut run, &env, &env.defs(), &mut out);
+    let (run, _) = verify(run, &env, &BAD);
+    let State::VerifyApply { config, .. } = run.state.clone() else {
+        panic!()
+    };
+    let (run, out) = verify(run, &env, &OK);
+    assert_eq!(reasons(&out), vec!["Satisfied", "<save>"]);
+    let Some(Output::SaveProfile(p)) = out.get(1) else {
+        panic!()
+    };
+    assert_eq!(
+        p.spec.config, config,
+        "the library keeps the backed-off config"
+    );
+    assert_eq!(
+        run.state,
+        State::Monitor {
+            satisfied: true,
+            config: config.clone()
+        }
+    );
+    let status = crate::tuning::status::status(&Default::default(), &run, &env.defs(), 5, 1, "now");
+    assert_eq!(status.best_trial, Some(1));
+    assert_eq!(status.best_trial_backoff, Some(0.8));
+    assert_eq!(status.rejected_trials, vec![1]);
+    assert_eq!(status.best_config, Some(config));
+    assert_eq!(
+        status.non_core_performance["det"], 9.0,
+        "from the verification, not the trial"
+    );
+}
+
+#[test]
+fn a_long_settle_is_measured_and_extended_while_a_core_metric_recovers() {
+    let (st, sp) = (stack(), spec(3.0, 5));
+    let env = env(&st, &sp);
+    let (run, _) = step(
+        with(State::TrialApply {
+            x: vec![],
+            config: cfg(),
+        }),
+        Input::Applied,
+        &env,
+    );
+    assert_eq!(name(&run.state), "TrialSettle");
+    let Effect::Measure(first) = effect(&run, &env) else {
+        panic!("an adaptive settle measures")
+    };
+    assert_eq!(first.duration_ms, 3000, "the spec's settle first");
+    // /cmd_vel climbs back while the detector drains: one more second.
+    let (run, out) = step(run, report(&[12.0, 20.0, 30.0], 5.0), &env);
+    assert!(out.is_empty());
+    assert_eq!(name(&run.state), "TrialSettle");
+    let Effect::Measure(more) = effect(&run, &env) else {
+        panic!()
+    };
+    assert_eq!(more.duration_ms, 1000);
+    let (run, _) = step(run, report(&[38.0], 5.0), &env);
+    assert_eq!(name(&run.state), "TrialSettle", "30 then 38: still moving");
+    let (run, out) = step(run, report(&[37.0], 5.0), &env);
+    assert_eq!(
+        run.state,
+        State::TrialProfile {
+            x: vec![],
+            config: cfg(),
+            partial: None
+        }
+    );
+    assert_eq!(reasons(&out), vec!["SettledLate"]);
+    // Verification settles the same way.
+    let (run, _) = step(
+        with(State::VerifyApply {
+            candidate: Candidate::Baseline,
+            config: cfg(),
+        }),
+        Input::Applied,
+        &env,
+    );
+    let (run, out) = step(run, report(&[38.0, 38.0, 37.0], 5.0), &env);
+    assert_eq!(name(&run.state), "Verify", "steady at once: no extension");
+    assert!(out.is_empty());
+}
+
+#[test]
+fn with_an_adaptive_settle_configs_are_applied_after_a_drain_of_the_non_core_apps() {
+    let mut out = Vec::new();
+    // Short settles (tests, simulations) do not drain.
+    let (st1, sp1) = (stack(), spec(1.0, 5));
+    let env1 = env(&st1, &sp1);
+    let mut run = with_two_trials(&env1);
+    run.state = finish(&mut run, &env1, &env1.defs(), &mut out);
+    assert_eq!(name(&run.state), "VerifyApply");
+    let (st, sp) = (stack(), spec(4.0, 5));
+    let env = env(&st, &sp);
+    let mut run = with_two_trials(&env);
+    // An adaptor into the detector too: its input can be held back.
+    run.knobs.knobs.push(knobs::KnobDef {
+        name: knobs::adaptor_knob_name("/image", "/detector"),
+        target: knobs::KnobTarget::Adaptor {
+            topic: "/image".into(),
+            subscriber: "/detector".into(),
+        },
+        min: 0.5,
+        max: 30.0,
+        restricts_non_core: true,
+    });
+    for t in &mut run.trials {
+        t.x.push(5.0);
+        t.config = run.knobs.to_config(&t.x);
+    }
+    let best = run.trials[1].config.clone();
+    run.state = finish(&mut run, &env, &env.defs(), &mut out);
+    let State::Drain { config, then, .. } = &run.state else {
+        panic!("{:?}", run.state)
+    };
+    assert_eq!(
+        **then,
+        State::VerifyApply {
+            candidate: Candidate::Trial { index: 1 },
+            config: best.clone()
+        }
+    );
+    assert_eq!(config.cpu["/detector"], 2.0, "non-core CPU freed");
+    assert_eq!(
+        config.cpu["/planner"], 1.5,
+        "core knobs as in the candidate"
+    );
+    assert_eq!(config.adaptors[0].rate_hz, 0.5, "non-core input held back");
+    assert_eq!(run.phase(), "Satisfied");
+    let drain = config.clone();
+    assert_eq!(effect(&run, &env), Effect::Apply(drain.clone()));
+    let (run, _) = step(run, Input::Applied, &env);
+    assert_eq!(run.current, drain);
+    let Effect::Measure(m) = effect(&run, &env) else {
+        panic!()
+    };
+    assert_eq!(m.duration_ms, settle::DRAIN_FIRST_MS);
+    // Navigation starved while the detector finishes its backlog, then back.
+    let (run, _) = step(run, report(&[12.0, 14.0], 0.0), &env);
+    assert_eq!(name(&run.state), "Drain");
+    let (run, _) = step(run, report(&[37.0], 0.0), &env);
+    assert_eq!(name(&run.state), "Drain", "on target but moved 23 Hz");
+    let resumed = run.clone().resumed();
+    assert!(matches!(
+        resumed.state,
+        State::Drain {
+            applied: false,
+            so_far: None,
+            ..
+        }
+    ));
+    let (run, _) = step(run, report(&[38.0], 0.0), &env);
+    assert_eq!(
+        run.state,
+        State::VerifyApply {
+            candidate: Candidate::Trial { index: 1 },
+            config: best
+        }
+    );
+}
+
+#[test]
+fn the_trial_to_verify_is_the_near_best_one_that_gives_non_core_apps_the_least() {
+    let (st, sp) = (stack(), spec(1.0, 5));
+    let env = env(&st, &sp);
+    let mut run = with_two_trials(&env);
+    run.trials.clear();
+    // /detector's CPU (non-core), /planner's (core); `det` targets 10.
+    for (x, det) in [([1.9, 1.5], 12.0), ([1.0, 1.5], 9.7), ([0.5, 1.5], 8.0)] {
+        let Input::Measured(r) = report(&OK, det) else {
+            unreachable!()
+        };
+        run.trials.push(TrialRecord {
+            config: run.knobs.to_config(&x),
+            x: x.to_vec(),
+            eval: measure::evaluate(&env.defs(), &r, Default::default()),
+            censored: false,
+        });
+    }
+    assert_eq!(
+        search::best_trial(&run),
+        Some(1),
+        "0.97 is as good as the capped 1.0 within a message; 0.8 is not"
+    );
+    run.rejected.push(1);
+    assert_eq!(search::best_trial(&run), Some(0));
+}
+
+#[test]
+fn safe_exploration_is_off_when_the_baseline_is_below_the_floor() {
+    let st = stack();
+    let sp = spec(1.0, 10);
+    let defs = measure::metric_defs(&st.spec, &sp.spec);
+    let core = defs.iter().filter(|d| d.core).count();
+    assert!(core >= 1);
+    let target = defs.iter().find(|d| d.core).unwrap().target;
+    assert!(!baseline_is_safe(0.8, &defs, &vec![target * 0.5; core]));
+    assert!(baseline_is_safe(0.8, &defs, &vec![target * 0.9; core]));
+}
+
+#[test]
+fn safe_exploration_is_off_when_no_config_can_be_worse_than_the_baseline() {
+    let knob = |name: &str, restricts_non_core: bool| knobs::KnobDef {
+        name: name.into(),
+        target: knobs::KnobTarget::Cpu { node: name.into() },
+        min: 0.1,
+        max: 2.0,
+        restricts_non_core,
+    };
+    let space = |ks: Vec<knobs::KnobDef>| KnobSpace {
+        knobs: ks,
+        period_micros: 20_000,
+    };
+    let non_core = space(vec![knob("/detector", true), knob("/web", true)]);
+    assert!(every_config_as_safe_as(&non_core, &[2.0, 2.0]));
+    assert!(
+        !every_config_as_safe_as(&non_core, &[2.0, 1.0]),
+        "a limited baseline: raising /web could starve the core"
+    );
+    let with_core = space(vec![knob("/detector", true), knob("/planner", false)]);
+    assert!(
+        !every_config_as_safe_as(&with_core, &[2.0, 2.0]),
+        "lowering a core node's CPU can starve it"
+    );
+    assert!(!every_config_as_safe_as(&non_core, &[2.0]));
+}
