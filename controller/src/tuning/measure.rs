@@ -38,6 +38,23 @@ pub struct MetricDef {
 }
 
 impl MetricDef {
+    /// The rate of `topic` (all subscribers), at least `target` Hz; a
+    /// constraint when `core`, else an objective of weight 1.
+    pub fn rate_at_least(name: &str, app: &str, topic: &str, target: f64, core: bool) -> MetricDef {
+        MetricDef {
+            name: name.into(),
+            app: app.into(),
+            probe: Probe::TopicRate {
+                topic: topic.into(),
+                subscriber: None,
+            },
+            at_least: true,
+            target,
+            core,
+            weight: 1.0,
+        }
+    }
+
     /// Whether one value meets the target.
     pub fn holds(&self, v: f64) -> bool {
         if self.at_least {

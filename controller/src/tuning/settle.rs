@@ -128,21 +128,9 @@ mod tests {
     use super::*;
 
     fn defs() -> Vec<MetricDef> {
-        let def = |name: &str, topic: &str, core: bool, target: f64| MetricDef {
-            name: name.into(),
-            app: "a".into(),
-            probe: Probe::TopicRate {
-                topic: topic.into(),
-                subscriber: None,
-            },
-            at_least: true,
-            target,
-            core,
-            weight: 1.0,
-        };
         vec![
-            def("cmd", "/cmd_vel", true, 35.0),
-            def("det", "/detections", false, 3.0),
+            MetricDef::rate_at_least("cmd", "a", "/cmd_vel", 35.0, true),
+            MetricDef::rate_at_least("det", "a", "/detections", 3.0, false),
         ]
     }
 

@@ -659,18 +659,7 @@ mod tests {
     #[test]
     fn a_topic_flows_when_its_probe_saw_messages() {
         use configbot_agent::measure::{MeasureReport, Probe, ProbeSeries};
-        let def = |name: &str, topic: &str| MetricDef {
-            name: name.into(),
-            app: "a".into(),
-            probe: Probe::TopicRate {
-                topic: topic.into(),
-                subscriber: None,
-            },
-            at_least: true,
-            target: 1.0,
-            core: true,
-            weight: 1.0,
-        };
+        let def = |name: &str, topic: &str| MetricDef::rate_at_least(name, "a", topic, 1.0, true);
         let defs = [
             def("cmd", "/cmd_vel"),
             def("det", "/det"),

@@ -328,7 +328,7 @@ pub fn summary(t: &Timeline) -> String {
 
 #[cfg(test)]
 mod tests {
-    use configbot_agent::measure::{Probe, ProbeSeries};
+    use configbot_agent::measure::ProbeSeries;
 
     use super::*;
 
@@ -410,18 +410,7 @@ mod tests {
 
     #[test]
     fn seconds_and_segments_follow_the_windows() {
-        let core = MetricDef {
-            name: "cmd".into(),
-            app: "nav".into(),
-            probe: Probe::TopicRate {
-                topic: "/cmd_vel".into(),
-                subscriber: None,
-            },
-            at_least: true,
-            target: 35.0,
-            core: true,
-            weight: 1.0,
-        };
+        let core = MetricDef::rate_at_least("cmd", "nav", "/cmd_vel", 35.0, true);
         let rep = |start: u64, v: Vec<f64>| MeasureReport {
             started_unix_ms: start,
             duration_ms: v.len() as u64 * 1000,
