@@ -165,25 +165,52 @@ impl Chart {
             (TOP + H - BOTTOM) / 2.0,
             esc(&self.y_label)
         );
+        // A vertical rule's label starts right of it, or ends left of it when
+        // it would run past the plot into the legend.
+        let label_left = |r: &Rule| {
+            let (x, width) = (sx(r.value), r.label.chars().count() as f64 * CHAR_W);
+            if x + 3.0 + width > W - RIGHT {
+                (x - 3.0 - width, width, true)
+            } else {
+                (x + 3.0, width, false)
+            }
+        };
         let spans: Vec<(f64, f64)> = self
             .rules
             .iter()
             .filter(|r| r.vertical)
-            .map(|r| (sx(r.value) + 3.0, r.label.chars().count() as f64 * CHAR_W))
+            .map(|r| {
+                let (left, width, _) = label_left(r);
+                (left, width)
+            })
             .collect();
         let mut rows = label_rows(&spans).into_iter();
         for r in &self.rules {
-            let (a, b, c, d, tx, ty) = if r.vertical {
+            let (a, b, c, d, tx, ty, anchor) = if r.vertical {
                 let x = sx(r.value);
                 let row = rows.next().unwrap_or(0) as f64;
-                (x, TOP, x, H - BOTTOM, x + 3.0, TOP + 12.0 + row * LABEL_ROW)
+                let (left, width, flipped) = label_left(r);
+                let (tx, anchor) = if flipped {
+                    (left + width, "end")
+                } else {
+                    (left, "start")
+                };
+                (
+                    x,
+                    TOP,
+                    x,
+                    H - BOTTOM,
+                    tx,
+                    TOP + 12.0 + row * LABEL_ROW,
+                    anchor,
+                )
             } else {
                 let y = sy(r.value);
-                (LEFT, y, W - RIGHT, y, W - RIGHT + 4.0, y + 4.0)
+                (LEFT, y, W - RIGHT, y, W - RIGHT + 4.0, y + 4.0, "start")
             };
             let _ = write!(
                 s,
-                r##"<line class="rule" x1="{a}" y1="{b}" x2="{c}" y2="{d}" stroke="#555" stroke-dasharray="5,4"/><text x="{tx}" y="{ty}">{}</text>"##,
+                r##"<line class="rule" x1="{a}" y1="{b}" x2="{c}" y2="{d}" stroke="#555" stroke-dasharray="5,4"/><text x="{tx}" y="{ty}" text-anchor="{anchor}">{}</text>"##,
                 esc(&r.label)
             );
         }
@@ -434,6 +461,36 @@ mod tests {
             })
             .collect();
         assert!(cy[1] < cy[0], "y=4 must be above y=3: {cy:?}");
+    }
+
+    #[test]
+    fn a_rule_label_near_the_right_edge_ends_left_of_its_rule() {
+        let mut c = chart();
+        let label = |x: f64, text: &str| Rule {
+            label: text.into(),
+            value: x,
+            vertical: true,
+        };
+        // x runs 1..3: a long label at 3 would run past the plot.
+        c.rules = vec![label(1.0, "early"), label(3.0, "a long label at the end")];
+        let svg = c.to_svg();
+        let text_of = |t: &str| {
+            let i = svg.find(&format!(">{t}</text>")).unwrap();
+            svg[..i].rsplit("<text ").next().unwrap().to_string()
+        };
+        assert!(text_of("early").contains(r#"text-anchor="start""#), "{svg}");
+        let late = text_of("a long label at the end");
+        assert!(late.contains(r#"text-anchor="end""#), "{late}");
+        let x: f64 = late["x=\"".len()..]
+            .split('"')
+            .next()
+            .unwrap()
+            .parse()
+            .unwrap();
+        assert!(
+            x <= W - RIGHT,
+            "the flipped label ends at {x}, inside the plot"
+        );
     }
 
     #[test]
