@@ -58,6 +58,11 @@ pub(crate) fn send_signal(pid: u32, sig: i32) -> bool {
     send_raw(i32::try_from(pid).unwrap_or(i32::MAX), sig)
 }
 
+/// Sends `sig` to the process group `pid` leads; false if it failed.
+pub(crate) fn send_group(pid: u32, sig: i32) -> bool {
+    send_raw(-i32::try_from(pid).unwrap_or(i32::MAX), sig)
+}
+
 /// Sends `sig` to every process in `node`'s cgroup, and again to any that
 /// joined meanwhile (a child forked before a SIGSTOP landed), until a pass
 /// finds none new. Returns the pids signalled; fails only when the cgroup
@@ -204,7 +209,7 @@ pub(crate) async fn terminate(agent: &Agent, node: &NodeName, mut main: Option<&
         let pids = agent.backend().pids(node).unwrap_or_default();
         match main.as_deref() {
             Some(p) if sig != libc::SIGKILL => {
-                send_raw(-i32::try_from(p.pid()).unwrap_or(i32::MAX), sig);
+                send_group(p.pid(), sig);
                 send_signal(p.pid(), sig);
             }
             _ => {

@@ -177,6 +177,13 @@ impl CpuWeight {
     pub fn v1_shares(self) -> u64 {
         u64::from(self.0) * 1024 / 100
     }
+
+    /// The weight a v1 `cpu.shares` value stands for (rounded up, clamped
+    /// to 1–10000: v1 allows 2–262144 shares).
+    pub fn from_v1_shares(shares: u64) -> Self {
+        let w = (shares.saturating_mul(100)).div_ceil(1024);
+        Self(u32::try_from(w.clamp(1, 10_000)).unwrap_or(10_000))
+    }
 }
 
 impl TryFrom<u32> for CpuWeight {
@@ -202,6 +209,11 @@ mod tests {
         assert_eq!(CpuWeight::new(6400).unwrap().v1_shares(), 65_536);
         assert_eq!(CpuWeight::new(1).unwrap().v1_shares(), 10);
         assert_eq!(CpuWeight::new(10_000).unwrap().v1_shares(), 102_400);
+        for w in [1, 100, 250, 6400, 10_000] {
+            let back = CpuWeight::from_v1_shares(CpuWeight::new(w).unwrap().v1_shares());
+            assert_eq!(back.v2(), w, "{w}");
+        }
+        assert_eq!(CpuWeight::from_v1_shares(262_144).v2(), 10_000);
         assert!(CpuWeight::new(0).is_err());
         assert!(CpuWeight::new(10_001).is_err());
         assert!(CpuWeight::try_from(0).is_err());

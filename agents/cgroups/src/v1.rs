@@ -163,8 +163,7 @@ impl CgroupBackend for V1Backend {
             path: path.clone(),
             reason: format!("{e}"),
         })?;
-        let w = u32::try_from((shares * 100).div_ceil(1024)).unwrap_or(u32::MAX);
-        CpuWeight::new(w.clamp(1, 10_000))
+        Ok(CpuWeight::from_v1_shares(shares))
     }
 }
 

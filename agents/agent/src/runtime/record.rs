@@ -17,6 +17,7 @@ use tokio::process::{Child, Command};
 use tokio::sync::Mutex;
 
 use crate::error::{Error, Result};
+use crate::supervise::send_group;
 
 /// How long rosbag gets to close its bag after SIGINT.
 pub const STOP_TIMEOUT: Duration = Duration::from_secs(10);
@@ -151,12 +152,7 @@ impl Recordings {
             .collect();
         for pid in &orphans {
             // Each recorder leads its own process group (see `start`).
-            let group = -i32::try_from(*pid).unwrap_or(i32::MAX);
-            #[allow(unsafe_code)]
-            // SAFETY: kill(2) takes plain integers and touches no memory of ours.
-            unsafe {
-                libc::kill(group, libc::SIGINT);
-            }
+            send_group(*pid, libc::SIGINT);
         }
         // Gone, or a zombie (`read_proc` is `None` for both).
         let deadline = tokio::time::Instant::now() + STOP_TIMEOUT;
@@ -188,24 +184,16 @@ fn is_recorder_in(cmdline: &str, dir: &Path) -> bool {
 }
 
 async fn finish(mut a: Active) -> PathBuf {
-    let group = a.child.id().and_then(|p| i32::try_from(p).ok());
+    let group = a.child.id();
     if let Some(g) = group {
-        #[allow(unsafe_code)]
-        // SAFETY: kill(2) takes plain integers and touches no memory of ours.
-        unsafe {
-            libc::kill(-g, libc::SIGINT);
-        }
+        send_group(g, libc::SIGINT);
     }
     if tokio::time::timeout(STOP_TIMEOUT, a.child.wait())
         .await
         .is_err()
     {
         if let Some(g) = group {
-            #[allow(unsafe_code)]
-            // SAFETY: as above.
-            unsafe {
-                libc::kill(-g, libc::SIGKILL);
-            }
+            send_group(g, libc::SIGKILL);
         }
         let _ = a.child.wait().await;
     }
