@@ -68,9 +68,14 @@ async fn ros_nodes_are_adopted_limited_adapted_and_measured() {
             && cgroup_pids(&rt, "/listener").contains(&listener_pid)
     })
     .await;
-    // The event stream saw the graph change and the adoption by ROS name.
+    // The event stream saw the graph change and the adoption by ROS name
+    // (the agent's events reach it through a forwarding task: wait for them).
     let (mut graph_listener, mut adopted) = (false, false);
-    while let Ok(ev) = events.try_recv() {
+    let end = Instant::now() + T;
+    while !(graph_listener && adopted) {
+        let Ok(Ok(ev)) = tokio::time::timeout_at(end.into(), events.recv()).await else {
+            break;
+        };
         match ev {
             RuntimeEvent::GraphChanged { events } => {
                 graph_listener |= events.iter().any(|g| {
