@@ -38,6 +38,10 @@ pub(crate) struct Core {
     pub meter_window_s: f64,
     pub wake: Notify,
     pub timeout: Duration,
+    /// One lock per edge: publisherUpdates of a topic to a subscriber go
+    /// out one at a time, each with the list as it is when sent, so the last
+    /// one to arrive is the newest (spawned calls could arrive reordered).
+    pub updating: Mutex<BTreeMap<EdgeId, Arc<tokio::sync::Mutex<()>>>>,
 }
 
 impl std::fmt::Debug for Core {
@@ -145,10 +149,16 @@ impl Core {
                 }
                 Effect::PublishersChanged { topic } => self.refresh_topic(&topic),
                 Effect::PublisherUpdate { topic, subscriber } => {
-                    let api = lock(&self.state).nodes.get(&subscriber).cloned();
-                    let Some(api) = api else { continue };
-                    let list = self.publishers_for(&topic, &subscriber);
+                    let edge = EdgeId {
+                        topic: topic.clone(),
+                        subscriber: subscriber.clone(),
+                    };
+                    let turn = lock(&self.updating).entry(edge).or_default().clone();
                     tokio::spawn(async move {
+                        let _turn = turn.lock().await;
+                        let api = lock(&core.state).nodes.get(&subscriber).cloned();
+                        let Some(api) = api else { return };
+                        let list = core.publishers_for(&topic, &subscriber);
                         let l = Value::Array(list.into_iter().map(Value::Str).collect());
                         let _ = http::call(
                             &api,

@@ -194,6 +194,7 @@ impl Ros1DataPlane {
             meter_window_s: config.meter_window.as_secs_f64(),
             wake: Notify::new(),
             timeout: config.call_timeout,
+            updating: Mutex::new(BTreeMap::new()),
         });
         let mut tasks = vec![
             tokio::spawn(http::serve(

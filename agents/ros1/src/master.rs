@@ -95,14 +95,25 @@ impl MasterHandler {
             "registerSubscriber" => {
                 let topic = params::resolve(&arg(p, 1, "topic")?, &caller);
                 let (ty, api) = (arg(p, 2, "topic_type")?, arg(p, 3, "caller_api")?);
-                let (pubs, fx) = lock(&core.state).register_subscriber(&caller, &api, &topic, &ty);
                 let id = EdgeId {
                     topic: topic.clone(),
                     subscriber: caller.clone(),
                 };
-                let place = !lock(&core.settings).contains_key(&id) && (core.placement)(&id, &pubs);
+                // Registered and placed under the settings lock: a
+                // publisherUpdate for this subscriber (a publisher registering
+                // meanwhile) reads the settings after the placement, so it
+                // names the adaptor as the reply below does.
+                let (place, fx) = {
+                    let mut settings = lock(&core.settings);
+                    let (pubs, fx) =
+                        lock(&core.state).register_subscriber(&caller, &api, &topic, &ty);
+                    let place = !settings.contains_key(&id) && (core.placement)(&id, &pubs);
+                    if place {
+                        settings.insert(id, Default::default());
+                    }
+                    (place, fx)
+                };
                 if place {
-                    lock(&core.settings).insert(id, Default::default());
                     core.persist_adaptors();
                 }
                 core.persist();

@@ -167,7 +167,7 @@ pub async fn run_node(cfg: NodeConfig) -> Result<(), SimnodeError> {
         .map(|(topic, idx)| {
             let sink = Arc::new(InSink::new(&topic, idx, dispatcher.clone(), pubs.clone()));
             let upstream = UpstreamSet::new(&cfg.name, &topic, sink.clone(), cfg.call_timeout);
-            (topic, Subscription { sink, upstream })
+            (topic, Subscription::new(sink, upstream))
         })
         .collect();
     let in_topics: Vec<String> = subs.keys().cloned().collect();
@@ -198,13 +198,17 @@ pub async fn run_node(cfg: NodeConfig) -> Result<(), SimnodeError> {
         while !pending.is_empty() {
             let mut left = Vec::new();
             for (method, topic) in pending {
+                let sub = slave
+                    .subs
+                    .get(&topic)
+                    .filter(|_| method == "registerSubscriber");
+                let seen = sub.map(Subscription::updates_seen);
                 match register(&cfg, &api, method, &topic).await {
-                    Ok(list) if method == "registerSubscriber" => {
-                        if let Some(s) = slave.subs.get(&topic) {
-                            s.upstream.set_publishers(&list, "*");
+                    Ok(list) => {
+                        if let (Some(s), Some(seen)) = (sub, seen) {
+                            s.registered(seen, &list);
                         }
                     }
-                    Ok(_) => {}
                     Err(_) => left.push((method, topic)),
                 }
             }

@@ -93,11 +93,63 @@ impl FrameSink for InSink {
     }
 }
 
-/// A live subscription: its sink and its publisher connections.
+/// A live subscription: its sink, its publisher connections, and how many
+/// publisherUpdates it has had.
+///
+/// The count orders the two ways a publisher list arrives. A master sends
+/// publisherUpdate only to registered subscribers, so an update that arrives
+/// while the node still waits for its registerSubscriber reply is newer than
+/// that reply; applying the reply afterwards would drop the publisher the
+/// update added (seen once in CI: a /scan publisher that registered during
+/// the navigation node's registerSubscriber, and cmd_vel never flowed).
 #[derive(Debug)]
 pub struct Subscription {
     pub sink: Arc<InSink>,
     pub upstream: UpstreamSet,
+    updates: Mutex<u64>,
+}
+
+impl Subscription {
+    pub fn new(sink: Arc<InSink>, upstream: UpstreamSet) -> Self {
+        Self {
+            sink,
+            upstream,
+            updates: Mutex::new(0),
+        }
+    }
+
+    /// How many publisherUpdates have arrived; read before registering.
+    pub fn updates_seen(&self) -> u64 {
+        *self
+            .updates
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+    }
+
+    /// A publisherUpdate: the master's current publishers of the topic.
+    pub fn publisher_update(&self, apis: &[String]) {
+        let mut n = self
+            .updates
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        *n += 1;
+        self.upstream.set_publishers(apis, "*");
+    }
+
+    /// The registerSubscriber reply of a call made after `seen` updates:
+    /// applied unless an update arrived since (it is newer); returns whether
+    /// it was applied.
+    pub fn registered(&self, seen: u64, apis: &[String]) -> bool {
+        let n = self
+            .updates
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        let fresh = *n == seen;
+        if fresh {
+            self.upstream.set_publishers(apis, "*");
+        }
+        fresh
+    }
 }
 
 /// The slave API handler.
@@ -201,7 +253,7 @@ impl Slave {
             "publisherUpdate" => {
                 let topic = call.params.get(1).and_then(Value::as_str).unwrap_or("");
                 if let Some(s) = self.subs.get(topic) {
-                    s.upstream.set_publishers(&uris(call.params.get(2)), "*");
+                    s.publisher_update(&uris(call.params.get(2)));
                 }
                 ok(Value::Int(0))
             }
@@ -221,5 +273,57 @@ impl Slave {
 impl Handler for Slave {
     fn handle(self: Arc<Self>, call: MethodCall) -> BoxFut<Response> {
         Box::pin(async move { self.answer(&call) })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::dispatch::PerMessage;
+    use std::sync::atomic::AtomicBool;
+    use std::time::Duration;
+
+    fn subscription() -> Subscription {
+        let stop = Arc::new(AtomicBool::new(false));
+        let dispatcher = Arc::new(Dispatcher::PerMessage(Arc::new(PerMessage::new(
+            vec![],
+            1,
+            0.0,
+            stop,
+        ))));
+        let pubs = Arc::new(Publications::new("/n", []));
+        let sink = Arc::new(InSink::new("/scan", vec![], dispatcher, pubs));
+        let upstream = UpstreamSet::new("/n", "/scan", sink.clone(), Duration::from_secs(1));
+        Subscription::new(sink, upstream)
+    }
+
+    // Publisher APIs nobody listens on: the connections just keep retrying.
+    fn apis(n: &[&str]) -> Vec<String> {
+        n.iter()
+            .map(|p| format!("http://127.0.0.1:9/{p}"))
+            .collect()
+    }
+
+    #[tokio::test]
+    async fn a_register_reply_older_than_an_update_does_not_undo_it() {
+        let s = subscription();
+        let seen = s.updates_seen();
+        // The publisher registers while our registerSubscriber is in flight.
+        s.publisher_update(&apis(&["lidar"]));
+        // The reply the master computed before it: no publishers yet.
+        assert!(!s.registered(seen, &[]));
+        assert_eq!(s.upstream.len(), 1, "the update's publisher was dropped");
+    }
+
+    #[tokio::test]
+    async fn a_register_reply_with_no_update_since_sets_the_publishers() {
+        let s = subscription();
+        s.publisher_update(&apis(&["old"]));
+        let seen = s.updates_seen();
+        assert!(s.registered(seen, &apis(&["a", "b"])));
+        assert_eq!(s.upstream.len(), 2);
+        // Later updates still replace the list (an adaptor instead of both).
+        s.publisher_update(&apis(&["adaptor"]));
+        assert_eq!(s.upstream.len(), 1);
     }
 }
