@@ -25,6 +25,9 @@ pub type Placement = Arc<dyn Fn(&EdgeId, &[String]) -> bool + Send + Sync>;
 /// Caller id the master uses in its callbacks.
 pub const MASTER_CALLER_ID: &str = "/master";
 
+/// How many times the master tries to get one publisherUpdate through.
+pub const UPDATE_ATTEMPTS: u32 = 4;
+
 pub(crate) struct Core {
     pub state: Mutex<MasterState>,
     pub store: Mutex<Store>,
@@ -149,25 +152,7 @@ impl Core {
                 }
                 Effect::PublishersChanged { topic } => self.refresh_topic(&topic),
                 Effect::PublisherUpdate { topic, subscriber } => {
-                    let edge = EdgeId {
-                        topic: topic.clone(),
-                        subscriber: subscriber.clone(),
-                    };
-                    let turn = lock(&self.updating).entry(edge).or_default().clone();
-                    tokio::spawn(async move {
-                        let _turn = turn.lock().await;
-                        let api = lock(&core.state).nodes.get(&subscriber).cloned();
-                        let Some(api) = api else { return };
-                        let list = core.publishers_for(&topic, &subscriber);
-                        let l = Value::Array(list.into_iter().map(Value::Str).collect());
-                        let _ = http::call(
-                            &api,
-                            "publisherUpdate",
-                            &[Value::str(MASTER_CALLER_ID), Value::str(topic), l],
-                            core.timeout,
-                        )
-                        .await;
-                    });
+                    tokio::spawn(core.publisher_update(EdgeId { topic, subscriber }));
                 }
                 Effect::ParamUpdate { node, key, value } => {
                     let api = lock(&self.state).nodes.get(&node).cloned();
@@ -182,6 +167,49 @@ impl Core {
                         .await;
                     });
                 }
+            }
+        }
+    }
+
+    /// Sends `edge.subscriber` the publishers of `edge.topic`, after any
+    /// update of the edge still in flight and with the list as it is when
+    /// sent. A call that does not get through (a node too busy to answer in
+    /// time, a refused connection) is sent again, up to [`UPDATE_ATTEMPTS`]
+    /// times, while the node still subscribes: a lost update leaves a roscpp
+    /// or simnode subscriber without a publisher for good.
+    async fn publisher_update(self: Arc<Self>, edge: EdgeId) {
+        let turn = lock(&self.updating)
+            .entry(edge.clone())
+            .or_default()
+            .clone();
+        let _turn = turn.lock().await;
+        let mut backoff = Duration::from_millis(250);
+        for attempt in 1..=UPDATE_ATTEMPTS {
+            let api = {
+                let st = lock(&self.state);
+                let subscribes = st
+                    .subscribers
+                    .get(&edge.topic)
+                    .is_some_and(|s| s.contains(&edge.subscriber));
+                st.nodes
+                    .get(&edge.subscriber)
+                    .filter(|_| subscribes)
+                    .cloned()
+            };
+            let Some(api) = api else { return };
+            let list = self.publishers_for(&edge.topic, &edge.subscriber);
+            let l = Value::Array(list.into_iter().map(Value::Str).collect());
+            let params = [Value::str(MASTER_CALLER_ID), Value::str(&edge.topic), l];
+            match http::call(&api, "publisherUpdate", &params, self.timeout).await {
+                Err(e @ (http::HttpError::Io { .. } | http::HttpError::Timeout { .. })) => {
+                    if attempt == UPDATE_ATTEMPTS {
+                        eprintln!("configbot-ros1: {e} ({attempt} attempts); giving up");
+                        return;
+                    }
+                    tokio::time::sleep(backoff).await;
+                    backoff *= 2;
+                }
+                _ => return,
             }
         }
     }

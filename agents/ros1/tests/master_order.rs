@@ -2,7 +2,8 @@
 //! subscriber slave that records every publisherUpdate it is sent, many
 //! publishers registering at once leave it with the full list, and a
 //! publisher registering while the subscriber's edge is being placed behind
-//! an adaptor never hands it the direct connection. Needs no ROS install.
+//! an adaptor never hands it the direct connection, and an update the
+//! subscriber was too busy to answer is sent again. Needs no ROS install.
 
 mod common;
 
@@ -16,17 +17,33 @@ use configbot_ros1::xmlrpc::{MethodCall, Response, Value};
 use configbot_ros1::{Placement, Ros1Config, Ros1DataPlane};
 
 const TIMEOUT: Duration = Duration::from_secs(5);
+/// The master's timeout on calls to nodes here, and how long a stalled
+/// publisherUpdate takes.
+const CALL_TIMEOUT: Duration = Duration::from_millis(500);
+const STALL: Duration = Duration::from_secs(3);
 
 /// A subscriber's slave API that records the lists of its publisherUpdates
 /// in the order they arrive.
 #[derive(Default)]
 struct Recorder {
+    /// The lists of the updates answered, in order.
     updates: Mutex<Vec<Vec<String>>>,
+    /// Whether the first publisherUpdate goes unanswered (a node too busy to
+    /// answer before the master's call times out).
+    stall_first: bool,
+    stalled: std::sync::atomic::AtomicBool,
 }
 
 impl Handler for Recorder {
     fn handle(self: Arc<Self>, call: MethodCall) -> BoxFut<Response> {
         Box::pin(async move {
+            if call.method == "publisherUpdate"
+                && self.stall_first
+                && !self.stalled.swap(true, std::sync::atomic::Ordering::SeqCst)
+            {
+                tokio::time::sleep(STALL).await;
+                return Response::Ok(Value::ros(1, "", Value::Int(0)));
+            }
             if call.method == "publisherUpdate" {
                 let list = call
                     .params
@@ -55,12 +72,17 @@ struct Fixture {
 }
 
 async fn start(placement: Option<Placement>) -> Fixture {
+    start_with(placement, Recorder::default()).await
+}
+
+async fn start_with(placement: Option<Placement>, recorder: Recorder) -> Fixture {
     let dir = tempfile::tempdir().unwrap();
     let cfg = Ros1Config {
         master_uri: format!("http://localhost:{}/", free_port()),
         bind_host: "127.0.0.1".into(),
         advertise_host: "127.0.0.1".into(),
         refresh_period: Duration::from_secs(60),
+        call_timeout: CALL_TIMEOUT,
         placement,
         ..Ros1Config::default()
     };
@@ -76,7 +98,7 @@ async fn start(placement: Option<Placement>) -> Fixture {
         "http://127.0.0.1:{}/",
         listener.local_addr().unwrap().port()
     );
-    let recorder = Arc::new(Recorder::default());
+    let recorder = Arc::new(recorder);
     tokio::spawn(http::serve(listener, recorder.clone()));
     Fixture {
         dp,
@@ -186,5 +208,25 @@ async fn a_publisher_registering_during_placement_is_reached_through_the_adaptor
     assert!(
         reply.is_empty() || reply == adaptor,
         "the reply bypasses the adaptor: {reply:?}"
+    );
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn an_update_the_subscriber_did_not_answer_in_time_is_sent_again() {
+    let recorder = Recorder {
+        stall_first: true,
+        ..Recorder::default()
+    };
+    let f = start_with(None, recorder).await;
+    let master = f.dp.master_uri().to_string();
+    let reply = register(&master, "registerSubscriber", "/sub", "/t", &f.slave_api).await;
+    assert!(reply.is_empty());
+    let publisher = "http://127.0.0.1:9/pub".to_string();
+    register(&master, "registerPublisher", "/pub", "/t", &publisher).await;
+    let got = updates(&f.recorder, 1).await;
+    assert_eq!(
+        got,
+        vec![vec![publisher]],
+        "the stalled update was not sent again"
     );
 }
