@@ -10,7 +10,9 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use clap::Args;
+use configbot_agent::agent::NodeStatus;
 use configbot_agent::measure::MeasureReport;
+use configbot_dataplane::Graph;
 use configbot_manifests::{Kind, Manifest, PerformanceSpec, RobotStack};
 use serde_json::{Value, json};
 
@@ -150,6 +152,53 @@ impl PrivateRobot {
     }
 }
 
+impl PrivateRobot {
+    /// The stack as the agent sees it, for an error about topics that do
+    /// not flow: [`describe_stack`] of its nodes and ROS graph.
+    pub async fn describe(&self) -> String {
+        let rt = self.robot.runtime();
+        let nodes = rt.inventory().await.unwrap_or_default();
+        match rt.graph().await {
+            Ok(g) => describe_stack(&nodes, &g),
+            Err(e) => format!(
+                "{}  (no ROS graph: {e})",
+                describe_stack(&nodes, &Graph::default())
+            ),
+        }
+    }
+}
+
+/// Each node's processes and restarts, and each topic's registered
+/// publishers and subscribers (pure): tells a node that died or never
+/// registered from a connection that never formed.
+pub fn describe_stack(nodes: &[NodeStatus], graph: &Graph) -> String {
+    let mut out = String::new();
+    for n in nodes {
+        let state = match (n.stopped, n.frozen, n.main_pid) {
+            (true, _, _) => "stopped".to_string(),
+            (_, true, _) => "frozen".to_string(),
+            (_, _, Some(pid)) => format!("pid {pid}"),
+            (_, _, None) => "no process".to_string(),
+        };
+        out += &format!(
+            "\n    node {} ({}): {state}, {} restarts, {:.2} CPU",
+            n.name, n.app, n.restarts, n.cpu_usage_cpus
+        );
+    }
+    for t in graph.topics.values() {
+        let names = |s: &std::collections::BTreeSet<String>| {
+            s.iter().map(String::as_str).collect::<Vec<_>>().join(" ")
+        };
+        out += &format!(
+            "\n    topic {}: published by [{}], subscribed by [{}]",
+            t.name,
+            names(&t.publishers),
+            names(&t.subscribers)
+        );
+    }
+    out
+}
+
 /// Measures `defs` for `secs` seconds in 1 s windows.
 pub async fn measure_defs(
     robot: &dyn Robot,
@@ -233,11 +282,13 @@ async fn demo(
     robot
         .apply(&serde_json::to_value(stack)?, Kind::RobotStack)
         .await?;
-    anyhow::ensure!(
-        wait_for_flow(robot.robot.as_ref(), &defs, Duration::from_secs(60)).await,
-        "the stack's topics did not start flowing within 60 s (logs: {})",
-        robot.dir.join("agent/logs").display()
-    );
+    if !wait_for_flow(robot.robot.as_ref(), &defs, Duration::from_secs(60)).await {
+        anyhow::bail!(
+            "the stack's topics did not start flowing within 60 s (logs: {}):{}",
+            robot.dir.join("agent/logs").display(),
+            robot.describe().await
+        );
+    }
     println!("==> measuring the default config for {} s", a.window_secs);
     let before = measure_defs(robot.robot.as_ref(), &defs, a.window_secs).await?;
     print_eval("default", &defs, &before);
@@ -498,5 +549,44 @@ mod tests {
             }
         }
         assert!(example("nope").is_err());
+    }
+
+    #[test]
+    fn a_stack_that_does_not_flow_is_described_by_its_nodes_and_registrations() {
+        let node = |name: &str, pid: Option<u32>, restarts: u32| -> NodeStatus {
+            serde_json::from_value(json!({
+                "name": name, "app": "nav", "kind": "run", "core": true,
+                "pids": pid.into_iter().collect::<Vec<_>>(), "mainPid": pid,
+                "cgroup": "/sys/fs/cgroup/cpu/x", "cpuUsageCpus": 0.5, "cpuLimit": null,
+                "stats": configbot_cgroups::CpuStats::default(), "restarts": restarts, "stopped": false,
+            }))
+            .unwrap()
+        };
+        let mut graph = Graph::default();
+        graph.topics.insert(
+            "/scan".into(),
+            configbot_dataplane::TopicInfo {
+                name: "/scan".into(),
+                msg_type: "*".into(),
+                publishers: ["/lidar".to_string()].into(),
+                subscribers: ["/navigation".to_string()].into(),
+            },
+        );
+        let text = describe_stack(
+            &[node("lidar", None, 3), node("navigation", Some(42), 0)],
+            &graph,
+        );
+        assert!(
+            text.contains("node /lidar (nav): no process, 3 restarts"),
+            "{text}"
+        );
+        assert!(
+            text.contains("node /navigation (nav): pid 42, 0 restarts, 0.50 CPU"),
+            "{text}"
+        );
+        assert!(
+            text.contains("topic /scan: published by [/lidar], subscribed by [/navigation]"),
+            "{text}"
+        );
     }
 }

@@ -340,13 +340,15 @@ async fn start<'a>(
         .iter()
         .filter(|n| defs.iter().any(|d| d.core && &d.name == *n))
         .collect();
-    anyhow::ensure!(
-        core_silent.is_empty(),
-        "{name}: no messages on {} within {} s (logs: {})",
-        silent.join(", "),
-        FLOW_TIMEOUT.as_secs(),
-        robot.dir.join("agent/logs").display()
-    );
+    if !core_silent.is_empty() {
+        anyhow::bail!(
+            "{name}: no messages on {} within {} s (logs: {}):{}",
+            silent.join(", "),
+            FLOW_TIMEOUT.as_secs(),
+            robot.dir.join("agent/logs").display(),
+            robot.describe().await
+        );
+    }
     if !silent.is_empty() {
         println!(
             "    {name}: no messages yet on {} (non-core; starved by the default config?)",
