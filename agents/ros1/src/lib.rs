@@ -249,8 +249,10 @@ impl Ros1DataPlane {
     }
 }
 
-/// Loads the persisted state, keeps the nodes that still answer getPid, and
-/// points adapted subscribers at the new adaptor endpoint.
+/// Loads the persisted state, drops the nodes whose slave URI refuses
+/// connections (they died while the agent was down; a stopped or busy node
+/// that does not answer in time is kept), and points adapted subscribers at
+/// the new adaptor endpoint.
 async fn restore(
     core: &Arc<Core>,
     state: MasterState,
@@ -269,10 +271,11 @@ async fn restore(
         let mut p = lock(pids);
         for ((name, api), pid) in nodes.iter().zip(answers) {
             match pid {
-                Some(pid) => {
+                PidReply::Pid(pid) => {
                     p.insert((name.clone(), api.clone()), pid);
                 }
-                None => fx.extend(st.drop_node(name)),
+                PidReply::Silent => {}
+                PidReply::Gone => fx.extend(st.drop_node(name)),
             }
         }
     }
@@ -296,26 +299,53 @@ async fn restore(
     core.run_effects(fx);
 }
 
-async fn get_pids(nodes: &[(String, String)], timeout: Duration) -> Vec<Option<u32>> {
+/// What a node's slave API did with a getPid call.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum PidReply {
+    Pid(u32),
+    /// No answer in time, or not a pid: the process may be stopped
+    /// (SIGSTOP by an app freeze: the kernel still accepts its
+    /// connections) or busy. Kept, as rosmaster keeps every node.
+    Silent,
+    /// Nothing listens at its URI any more: the node is gone.
+    Gone,
+}
+
+impl PidReply {
+    fn pid(self) -> Option<u32> {
+        match self {
+            PidReply::Pid(p) => Some(p),
+            PidReply::Silent | PidReply::Gone => None,
+        }
+    }
+}
+
+async fn get_pids(nodes: &[(String, String)], timeout: Duration) -> Vec<PidReply> {
     let handles: Vec<_> = nodes
         .iter()
         .map(|(_, api)| {
             let api = api.clone();
             tokio::spawn(async move {
-                let v = http::call(&api, "getPid", &[Value::str(MASTER_CALLER_ID)], timeout)
-                    .await
-                    .ok()?;
-                let a = v.as_array()?;
-                (a.first()?.as_i64()? == 1).then_some(())?;
-                u32::try_from(a.get(2)?.as_i64()?).ok()
+                match http::call(&api, "getPid", &[Value::str(MASTER_CALLER_ID)], timeout).await {
+                    Ok(v) => pid_of(&v).map_or(PidReply::Silent, PidReply::Pid),
+                    Err(http::HttpError::Io { .. } | http::HttpError::BadUri(_)) => PidReply::Gone,
+                    Err(_) => PidReply::Silent,
+                }
             })
         })
         .collect();
     let mut out = Vec::with_capacity(handles.len());
     for h in handles {
-        out.push(h.await.ok().flatten());
+        out.push(h.await.unwrap_or(PidReply::Silent));
     }
     out
+}
+
+/// The pid in a getPid reply `[1, msg, pid]`.
+fn pid_of(v: &Value) -> Option<u32> {
+    let a = v.as_array()?;
+    (a.first()?.as_i64()? == 1).then_some(())?;
+    u32::try_from(a.get(2)?.as_i64()?).ok()
 }
 
 /// Builds the graph from master state and known pids. Pure.
@@ -371,8 +401,8 @@ async fn monitor(
         let answers = get_pids(&todo, core.timeout).await;
         {
             let mut p = lock(&pids);
-            for (k, pid) in todo.into_iter().zip(answers) {
-                match pid {
+            for (k, reply) in todo.into_iter().zip(answers) {
+                match reply.pid() {
                     Some(pid) => {
                         p.insert(k, pid);
                     }

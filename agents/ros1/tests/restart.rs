@@ -1,7 +1,8 @@
 //! Kill -9 of the agent's master process and restart on the same database:
 //! running nodes stay visible and connected, parameters survive, an adapted
-//! subscriber is re-pointed at the new adaptor and a new subscriber still
-//! connects to the old publisher. Skipped with a message without ROS.
+//! subscriber is re-pointed at the new adaptor, a node stopped across the
+//! restart is kept, and a new subscriber still connects to the old
+//! publisher. Skipped with a message without ROS.
 
 mod common;
 
@@ -68,6 +69,15 @@ fn kill_and_restart_keeps_graph_params_and_connections() {
         env.run("rosnode", &["list"]).contains(doomed.as_str())
     });
 
+    // a node stopped (SIGSTOP, as an app freeze does) across the restart
+    // cannot answer getPid, but it is alive: it is kept
+    let frozen = unique("frozen");
+    let frozen_p = env.script("listener.py", &[&frozen, &topic]);
+    wait_for("frozen listener receives", Duration::from_secs(20), || {
+        recent(&frozen_p) > 20
+    });
+    frozen_p.signal("STOP");
+
     master.kill();
     // a node that dies while the master is down is dropped on restart
     doomed_p.kill();
@@ -80,7 +90,7 @@ fn kill_and_restart_keeps_graph_params_and_connections() {
     let _master2 = start_master(&env, port, &db, &adapt);
 
     let nodes = env.run("rosnode", &["list"]);
-    for n in [&tname, &plain, &adapted] {
+    for n in [&tname, &plain, &adapted, &frozen] {
         assert!(
             nodes.contains(n.as_str()),
             "{n} missing after restart: {nodes}"
@@ -100,6 +110,13 @@ fn kill_and_restart_keeps_graph_params_and_connections() {
     });
     let ra = measure_rate(&la, 3.0);
     assert!((8.5..=11.5).contains(&ra), "adapted after restart: {ra}");
+    // the frozen listener, thawed, is still in the graph and receiving
+    frozen_p.signal("CONT");
+    wait_for("thawed listener receives", Duration::from_secs(20), || {
+        recent(&frozen_p) > 20
+    });
+    let info = env.run("rostopic", &["info", &topic]);
+    assert!(info.contains(&frozen), "{info}");
     // a new subscriber still connects to the old publisher
     let newcomer = env.script("listener.py", &[&unique("newcomer"), &topic]);
     wait_for("new subscriber receives", Duration::from_secs(20), || {

@@ -174,6 +174,19 @@ impl Proc {
         self.kill();
     }
 
+    /// Sends `signal` (e.g. `STOP`, `CONT`) to the child's process group.
+    pub fn signal(&self, signal: &str) {
+        let ok = Command::new("kill")
+            .args([
+                &format!("-{signal}"),
+                "--",
+                &format!("-{}", self.child.id()),
+            ])
+            .status()
+            .is_ok_and(|s| s.success());
+        assert!(ok, "kill -{signal} {}", self.child.id());
+    }
+
     pub fn kill(&mut self) {
         let _ = Command::new("kill")
             .args(["-KILL", "--", &format!("-{}", self.child.id())])
