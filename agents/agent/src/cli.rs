@@ -95,6 +95,10 @@ pub struct AgentArgs {
     /// weight × 10.24). Unset: the kernel's default.
     #[arg(long, value_parser = clap::value_parser!(u32).range(1..=10_000))]
     pub subtree_cpu_weight: Option<u32>,
+    /// Largest rosbag a remediation's recording writes, in MB; rosbag stops
+    /// recording there (it keeps the first part: the moments after the pause).
+    #[arg(long, default_value_t = 1024, value_parser = clap::value_parser!(u64).range(1..))]
+    pub recording_max_mb: u64,
 }
 
 impl AgentArgs {
@@ -110,6 +114,7 @@ impl AgentArgs {
             scan_interval: Duration::from_millis(self.scan_interval_ms),
             lift_limits_on_shutdown: self.lift_limits_on_shutdown,
             subtree_cpu_weight: self.subtree_cpu_weight.map(CpuWeight::new).transpose()?,
+            recording_max_mb: self.recording_max_mb,
             ..AgentSettings::default()
         })
     }

@@ -252,6 +252,7 @@ impl NodeRuntime {
             .state_file
             .parent()
             .map_or_else(|| PathBuf::from("bags"), |d| d.join("bags"));
+        let agent_recording_max_mb = agent.settings().recording_max_mb;
         let rt = Self {
             inner: Arc::new(Inner {
                 agent,
@@ -266,7 +267,7 @@ impl NodeRuntime {
                 metered: Mutex::new(BTreeSet::new()),
                 registry,
                 topic_rate,
-                recordings: record::Recordings::new(bags),
+                recordings: record::Recordings::new(bags, agent_recording_max_mb),
             }),
         };
         let mut rx = rt.inner.agent.subscribe();

@@ -117,6 +117,14 @@ pub struct AgentSettings {
     /// (v2 units, 100 = a plain service); `None` leaves the kernel's value.
     #[serde(default)]
     pub subtree_cpu_weight: Option<CpuWeight>,
+    /// Largest bag a recording writes, in MB (`rosbag record --size`): rosbag
+    /// stops there, keeping the first minutes after an app was paused.
+    #[serde(default = "default_recording_max_mb")]
+    pub recording_max_mb: u64,
+}
+
+fn default_recording_max_mb() -> u64 {
+    1024
 }
 
 impl Default for AgentSettings {
@@ -133,6 +141,7 @@ impl Default for AgentSettings {
             scan_interval: Duration::from_millis(500),
             lift_limits_on_shutdown: false,
             subtree_cpu_weight: None,
+            recording_max_mb: default_recording_max_mb(),
         }
     }
 }

@@ -12,7 +12,7 @@ use configbot_manifests::{AdaptorRate, ResourceConfig};
 use configbot_procmon::{MonitorKind, Preference};
 
 use common::node;
-use common::rt::{RtEnv, eventually, robot_stack, ros_available, stack_yaml};
+use common::rt::{RECORDING_MAX_MB, RtEnv, eventually, robot_stack, ros_available, stack_yaml};
 
 const T: Duration = Duration::from_secs(40);
 
@@ -654,6 +654,48 @@ async fn a_rosbag_recording_over_the_api_holds_the_topics_messages() {
     server.abort();
 }
 
+/// A recording of a busy topic stops at the size cap (`rosbag record
+/// --size`): rosbag closes the bag by itself, and the bag is about the cap,
+/// not the seconds × rate it would otherwise hold.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_recording_stops_at_its_size_cap() {
+    const PAD: usize = 100_000;
+    let Some((env, rt)) = RtEnv::start_with_ros(None).await else {
+        return;
+    };
+    let stack = robot_stack(&stack_yaml(&env.rospy_core_app(
+        "cam",
+        &[(
+            "/camera",
+            "talker.py",
+            &["camera", "/image", "20", &PAD.to_string()],
+        )],
+    )));
+    rt.set_stack(&stack).await.unwrap();
+    let published = || {
+        let g = rt.data_plane().map(|d| d.graph()).unwrap_or_default();
+        g.topics
+            .get("/image")
+            .is_some_and(|t| !t.publishers.is_empty())
+    };
+    eventually("/image published", T, published).await;
+    // 20 × 100 kB = 2 MB/s: the cap is reached in about a second.
+    let path = rt
+        .start_recording("capped", &["/image".to_string()])
+        .await
+        .unwrap()
+        .expect("rosbag is installed with ros-core");
+    // rosbag writes `<bag>.active` and renames it when it closes the bag.
+    eventually("rosbag closed the bag at its cap", T, || path.exists()).await;
+    let bytes = std::fs::metadata(&path).unwrap().len();
+    let cap = RECORDING_MAX_MB * 1024 * 1024;
+    eprintln!("capped bag: {bytes} bytes (cap {cap})");
+    // At most one chunk (768 kB) and a message past the cap.
+    assert!(bytes <= cap + 1024 * 1024, "{bytes} bytes");
+    assert!(bytes >= cap / 2, "{bytes} bytes");
+    assert_eq!(rt.stop_recording("capped").await.unwrap(), Some(path));
+}
+
 /// A recorder a killed runtime left behind (here a stand-in `rosbag` that
 /// exits on SIGINT, as rosbag does after closing its bag) is stopped by the
 /// next runtime's `stop_orphans`; one writing elsewhere is left alone.
@@ -689,7 +731,7 @@ async fn a_recorder_left_by_a_killed_runtime_is_stopped() {
         })
     })
     .await;
-    Recordings::new(bags.clone())
+    Recordings::new(bags.clone(), RECORDING_MAX_MB)
         .stop_orphans(std::path::Path::new("/proc"))
         .await;
     assert!(

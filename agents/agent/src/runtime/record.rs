@@ -1,10 +1,11 @@
 //! Rosbag recordings on request. The controller records the inputs of the
 //! apps a remediation pauses, so the robot's situation can be replayed when
 //! relearning later. A recording is `rosbag record -O <dir>/<name>-<ms>.bag
-//! <topics>` against the runtime's master, in its own process group, with its
+//! --size=<max MB> <topics>` against the runtime's master (rosbag stops at
+//! that size), in its own process group, with its
 //! output in `<dir>/<name>.log`; stopping sends SIGINT so rosbag closes the
-//! bag (it writes `<file>.active` and renames it when done), SIGKILL after
-//! [`STOP_TIMEOUT`]. One recording per name. Recordings live as long as the
+//! bag (it writes `<file>.active` and renames it when done) and waits for its
+//! recorder process as well as its wrapper, SIGKILL after [`STOP_TIMEOUT`]. One recording per name. Recordings live as long as the
 //! runtime: a runtime that stops stops them, and one that starts stops any
 //! that a killed runtime left running ([`Recordings::stop_orphans`]), so no
 //! bag grows unowned.
@@ -26,6 +27,8 @@ pub const STOP_TIMEOUT: Duration = Duration::from_secs(10);
 #[derive(Debug)]
 pub struct Recordings {
     dir: PathBuf,
+    /// Largest bag, in MB (`rosbag record --size`; rosbag stops there).
+    max_mb: u64,
     active: Mutex<BTreeMap<String, Active>>,
 }
 
@@ -60,10 +63,12 @@ pub fn valid_name(name: &str) -> bool {
 }
 
 impl Recordings {
-    /// Recordings under `dir` (created on first use).
-    pub fn new(dir: PathBuf) -> Recordings {
+    /// Recordings under `dir` (created on first use), each bag at most
+    /// `max_mb` MB.
+    pub fn new(dir: PathBuf, max_mb: u64) -> Recordings {
         Recordings {
             dir,
+            max_mb,
             active: Mutex::new(BTreeMap::new()),
         }
     }
@@ -110,6 +115,7 @@ impl Recordings {
         cmd.arg("record")
             .arg("-O")
             .arg(&path)
+            .arg(format!("--size={}", self.max_mb))
             .args(topics)
             .env("ROS_MASTER_URI", master_uri)
             .env("ROS_HOME", &dir)
@@ -184,20 +190,44 @@ fn is_recorder_in(cmdline: &str, dir: &Path) -> bool {
 }
 
 async fn finish(mut a: Active) -> PathBuf {
+    let proc_root = Path::new("/proc");
     let group = a.child.id();
+    // The `rosbag` wrapper (python) runs the recorder as its child and can
+    // exit on SIGINT before the recorder has closed the bag (renamed
+    // `<bag>.active`): wait for the recorder too.
+    let workers = group.map_or_else(Vec::new, |g| descendants(proc_root, g));
     if let Some(g) = group {
         send_group(g, libc::SIGINT);
     }
-    if tokio::time::timeout(STOP_TIMEOUT, a.child.wait())
-        .await
-        .is_err()
-    {
+    let all_gone = async {
+        let _ = a.child.wait().await;
+        while workers.iter().any(|w| {
+            crate::procfs::read_proc(proc_root, w.pid).is_some_and(|p| p.start_time == w.start_time)
+        }) {
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+    };
+    if tokio::time::timeout(STOP_TIMEOUT, all_gone).await.is_err() {
         if let Some(g) = group {
             send_group(g, libc::SIGKILL);
         }
         let _ = a.child.wait().await;
     }
     a.path
+}
+
+/// Every process descending from `pid`, from `proc_root`.
+fn descendants(proc_root: &Path, pid: u32) -> Vec<crate::procfs::ProcInfo> {
+    let procs = crate::procfs::list_procs(proc_root);
+    let mut out = Vec::new();
+    let mut parents = vec![pid];
+    while let Some(parent) = parents.pop() {
+        for p in procs.iter().filter(|p| p.ppid == parent) {
+            parents.push(p.pid);
+            out.push(p.clone());
+        }
+    }
+    out
 }
 
 #[cfg(test)]
@@ -237,7 +267,7 @@ mod tests {
     #[tokio::test]
     async fn nothing_to_record_is_no_recording() {
         let dir = tempfile::tempdir().unwrap();
-        let r = Recordings::new(dir.path().join("bags"));
+        let r = Recordings::new(dir.path().join("bags"), 1);
         assert_eq!(
             r.start("x", &[], "http://localhost:1/").await.unwrap(),
             None

@@ -103,6 +103,9 @@ impl Drop for Proc {
     }
 }
 
+/// The bag size cap of the runtimes under test, in MB.
+pub const RECORDING_MAX_MB: u64 = 2;
+
 /// Owns one runtime under test with everything it created.
 pub struct RtEnv {
     pub root: String,
@@ -136,6 +139,7 @@ impl RtEnv {
             backoff_initial: Duration::from_millis(100),
             backoff_max: Duration::from_millis(1000),
             scan_interval: Duration::from_millis(200),
+            recording_max_mb: RECORDING_MAX_MB,
             ..AgentSettings::default()
         }
     }
