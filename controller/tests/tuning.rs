@@ -793,14 +793,30 @@ async fn sustained_violation_triggers_relearning_that_restores_the_constraint() 
         events[violated..].iter().any(|(r, _)| r == "Trial"),
         "relearning ran trials"
     );
+    // Before relearning, the next best trial of the first run was verified
+    // (the learned config might only have tipped) and failed: the workload
+    // did change.
+    let next_best = events[violated..]
+        .iter()
+        .position(|(r, _)| r == "VerifyingNextBest")
+        .unwrap_or_else(|| panic!("{events:#?}"));
+    assert_eq!(
+        events[violated + next_best + 1].0,
+        "VerificationFailed",
+        "{events:#?}"
+    );
     let run = f.run();
     let base = run.baseline.as_ref().unwrap();
     assert!(
         base.eval.satisfaction < 0.5,
-        "the relearn baseline is the old config, now violating: {:?}",
+        "the relearn baseline is the config on the robot, now violating: {:?}",
         base.eval
     );
-    assert_eq!(base.config, learned);
+    assert!(
+        first.trials.iter().any(|t| t.config == base.config) && base.config != learned,
+        "the relearn baseline is the next best trial's config: {:?}",
+        base.config
+    );
     assert!(run.monitor.satisfaction().unwrap() >= 0.99);
     assert!(
         f.metrics

@@ -29,7 +29,7 @@ use super::knobs::KnobSpace;
 use super::library;
 use super::measure::{self, Evaluation, MetricDef};
 use super::monitor::{ConstraintMonitor, Trigger};
-use super::outcome::{list_or_none, remediate, verified};
+use super::outcome::{self, list_or_none, remediate, verified};
 use super::search::{baseline_done, next_trial, record_trial, settled};
 pub use super::search::{baseline_is_safe, every_config_as_safe_as};
 pub(crate) use super::search::{drain_first, finish};
@@ -280,6 +280,11 @@ pub struct Run {
     /// The measurement of the config being monitored, from its verification.
     #[serde(default)]
     pub verified: Option<Evaluation>,
+    /// Set while the next-best trial is verified because the held config
+    /// tipped (see [`outcome::after_tip`]): the violation to relearn from
+    /// when that verification fails too.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub tipped: Option<Trigger>,
 }
 
 impl Run {
@@ -319,6 +324,7 @@ impl Run {
             library_hits: 0,
             current: ResourceConfig::default(),
             verified: None,
+            tipped: None,
         }
     }
 
@@ -561,6 +567,7 @@ pub fn step(mut run: Run, input: Input, env: &Env<'_>) -> (Run, Vec<Output>) {
                 known => {
                     run.trials.clear();
                     run.rejected.clear();
+                    run.tipped = None;
                     run.optimizer = None;
                     run.baseline = None;
                     // A violation of a config that held means the workload
@@ -715,13 +722,15 @@ pub fn step(mut run: Run, input: Input, env: &Env<'_>) -> (Run, Vec<Output>) {
             match run.monitor.observe(&ok, sub, window) {
                 Some(t) if satisfied => {
                     out.push(warning(t.reason(), t.message()));
-                    if env.tuning_allowed {
+                    if !env.tuning_allowed {
+                        remediate(env, run.context.as_ref(), &mut out)
+                    } else if let Some(next) = outcome::after_tip(&mut run, env, &t, &mut out) {
+                        next
+                    } else {
                         State::Observe {
                             trigger: t,
                             skip_library: true,
                         }
-                    } else {
-                        remediate(env, run.context.as_ref(), &mut out)
                     }
                 }
                 _ => State::Monitor { satisfied, config },

@@ -271,6 +271,44 @@ pub fn paused_inputs(stack: &RobotStack, graph: &Graph, apps: &[String]) -> Vec<
         .collect()
 }
 
+/// The config being monitored, which held its verification, has tipped (a
+/// sustained violation; the context is the same, or a context change would
+/// have come first). Either the workload changed, and the run's trials are
+/// stale, or the config was one that keeps up only from an empty backlog
+/// (it passed its trial and verification after a drain, then a burst filled
+/// the backlog) and the run's other trials still hold. The second is cheaper
+/// to try: when the config came from this run's trials, reject that trial and
+/// verify the next best once (drained first); if that fails too, relearn cold.
+/// `None`: nothing to try (a library or baseline config, or no feasible trial
+/// left), so relearn now.
+pub fn after_tip(
+    run: &mut Run,
+    env: &Env<'_>,
+    violation: &Trigger,
+    out: &mut Vec<Output>,
+) -> Option<State> {
+    let index = match run.applied {
+        Some(Candidate::Trial { index } | Candidate::Backoff { index, .. }) => index,
+        _ => return None,
+    };
+    if !run.rejected.contains(&index) {
+        run.rejected.push(index);
+    }
+    let next = super::search::best_trial(run)?;
+    out.push(normal(
+        "VerifyingNextBest",
+        format!(
+            "trial {index}'s config held its verification, then tipped; verifying trial {next}, the next best, before relearning"
+        ),
+    ));
+    run.tipped = Some(violation.clone());
+    let verify = State::VerifyApply {
+        candidate: Candidate::Trial { index: next },
+        config: run.trials[next].config.clone(),
+    };
+    Some(drain_first(run, env, verify))
+}
+
 /// A verification measured: monitor the candidate, or try the next one.
 #[allow(clippy::too_many_arguments)]
 pub fn verified(
@@ -321,6 +359,7 @@ pub fn verified(
         if !matches!(candidate, Candidate::Baseline) {
             run.reason = None;
         }
+        run.tipped = None;
         run.applied = Some(candidate);
         run.verified = Some(eval);
         run.monitor = ConstraintMonitor::default();
@@ -339,7 +378,14 @@ pub fn verified(
                 ),
             ));
             run.rejected.push(index);
-            back_off(run, env, defs, index, 1.0, out)
+            match run.tipped.take() {
+                // The next best after a tip failed too: the workload changed.
+                Some(t) => State::Observe {
+                    trigger: t,
+                    skip_library: true,
+                },
+                None => back_off(run, env, defs, index, 1.0, out),
+            }
         }
         Candidate::Backoff { index, fraction } => {
             out.push(warning(

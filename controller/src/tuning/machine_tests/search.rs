@@ -398,3 +398,81 @@ fn safe_exploration_is_off_when_no_config_can_be_worse_than_the_baseline() {
     );
     assert!(!every_config_as_safe_as(&non_core, &[2.0]));
 }
+
+/// A held trial config tips: the next best is verified before relearning,
+/// the run's trials kept; if it holds it is monitored (and learned), if not
+/// the run relearns cold.
+#[test]
+fn a_held_config_that_tips_verifies_the_next_best_before_relearning_cold() {
+    let (st, sp) = (stack(), spec(1.0, 5));
+    let env = env(&st, &sp);
+    let mut run = with_two_trials(&env);
+    let mut out = Vec::new();
+    run.state = finish(&mut run, &env, &env.defs(), &mut out);
+    let (run, out) = verify(run, &env, &OK);
+    assert_eq!(reasons(&out), vec!["Satisfied", "<save>"]);
+    // Trial 1's config tips after its verification.
+    let (tipped, out) = step(run, report(&BAD, 5.0), &env);
+    assert_eq!(
+        reasons(&out),
+        vec!["ConstraintViolated", "VerifyingNextBest"]
+    );
+    assert_eq!(
+        tipped.state,
+        State::VerifyApply {
+            candidate: Candidate::Trial { index: 0 },
+            config: tipped.trials[0].config.clone()
+        }
+    );
+    assert_eq!(tipped.rejected, vec![1]);
+    assert_eq!(tipped.trials.len(), 2, "the run's trials are kept");
+
+    let (held, out) = verify(tipped.clone(), &env, &OK);
+    assert_eq!(reasons(&out), vec!["Satisfied", "<save>"]);
+    assert_eq!(name(&held.state), "Monitor");
+    assert_eq!(held.tipped, None);
+    assert_eq!(held.applied, Some(Candidate::Trial { index: 0 }));
+
+    let (failed, out) = verify(tipped, &env, &BAD);
+    assert_eq!(reasons(&out), vec!["VerificationFailed"]);
+    let State::Observe {
+        trigger: Trigger::ConstraintViolated { .. },
+        skip_library: true,
+    } = failed.state
+    else {
+        panic!("{:?}", failed.state)
+    };
+    assert_eq!(failed.rejected, vec![1, 0]);
+    let (cold, _) = step(failed, observed(true), &env);
+    let State::Baseline { prior: None, .. } = cold.state else {
+        panic!("relearns cold: {:?}", cold.state)
+    };
+    assert!(cold.trials.is_empty() && cold.tipped.is_none());
+}
+
+/// Nothing to fall back on: a tipped config whose run has no other feasible
+/// trial, or one from the library, relearns at once.
+#[test]
+fn a_tipped_config_with_nothing_else_to_try_relearns_at_once() {
+    let (st, sp) = (stack(), spec(1.0, 5));
+    let env = env(&st, &sp);
+    let monitoring = |applied| {
+        let mut run = with_two_trials(&env);
+        run.trials.truncate(1);
+        run.applied = Some(applied);
+        run.state = State::Monitor {
+            satisfied: true,
+            config: cfg(),
+        };
+        run
+    };
+    for applied in [
+        Candidate::Trial { index: 0 },
+        Candidate::Library { profile: profile() },
+    ] {
+        let (run, out) = step(monitoring(applied.clone()), report(&BAD, 5.0), &env);
+        assert_eq!(reasons(&out), vec!["ConstraintViolated"], "{applied:?}");
+        assert_eq!(name(&run.state), "Observe", "{applied:?}");
+        assert!(run.tipped.is_none());
+    }
+}
