@@ -96,8 +96,9 @@ pub struct AgentArgs {
     #[arg(long, value_parser = clap::value_parser!(u32).range(1..=10_000))]
     pub subtree_cpu_weight: Option<u32>,
     /// Largest rosbag a remediation's recording writes, in MB; rosbag stops
-    /// recording there (it keeps the first part: the moments after the pause).
-    #[arg(long, default_value_t = 1024, value_parser = clap::value_parser!(u64).range(1..))]
+    /// recording there (it keeps the first part: the moments after the
+    /// pause). 0: no cap.
+    #[arg(long, default_value_t = 1024)]
     pub recording_max_mb: u64,
 }
 

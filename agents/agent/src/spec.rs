@@ -118,7 +118,8 @@ pub struct AgentSettings {
     #[serde(default)]
     pub subtree_cpu_weight: Option<CpuWeight>,
     /// Largest bag a recording writes, in MB (`rosbag record --size`): rosbag
-    /// stops there, keeping the first minutes after an app was paused.
+    /// stops there, keeping the first minutes after an app was paused. 0: no
+    /// cap.
     #[serde(default = "default_recording_max_mb")]
     pub recording_max_mb: u64,
 }

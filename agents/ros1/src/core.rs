@@ -41,10 +41,14 @@ pub(crate) struct Core {
     pub meter_window_s: f64,
     pub wake: Notify,
     pub timeout: Duration,
-    /// One lock per edge: publisherUpdates of a topic to a subscriber go
-    /// out one at a time, each with the list as it is when sent, so the last
-    /// one to arrive is the newest (spawned calls could arrive reordered).
+    /// One lock per edge with an update pending or in flight:
+    /// publisherUpdates of a topic to a subscriber go out one at a time, each
+    /// with the list as it is when sent, so of the calls the node answered the
+    /// last is the newest (spawned calls could arrive reordered). A call that
+    /// timed out may still be handled by the node later, after its retry.
     pub updating: Mutex<BTreeMap<EdgeId, Arc<tokio::sync::Mutex<()>>>>,
+    /// Set when the data plane is dropped: pending publisherUpdates stop.
+    pub closed: std::sync::atomic::AtomicBool,
 }
 
 impl std::fmt::Debug for Core {
@@ -182,9 +186,22 @@ impl Core {
             .entry(edge.clone())
             .or_default()
             .clone();
-        let _turn = turn.lock().await;
+        let held = turn.lock().await;
+        self.send_publisher_update(&edge).await;
+        drop(held);
+        // Forget the edge's lock unless another update holds or waits for it.
+        let mut updating = lock(&self.updating);
+        if Arc::strong_count(&turn) == 2 {
+            updating.remove(&edge);
+        }
+    }
+
+    async fn send_publisher_update(self: &Arc<Self>, edge: &EdgeId) {
         let mut backoff = Duration::from_millis(250);
         for attempt in 1..=UPDATE_ATTEMPTS {
+            if self.closed.load(std::sync::atomic::Ordering::Relaxed) {
+                return;
+            }
             let api = {
                 let st = lock(&self.state);
                 let subscribes = st

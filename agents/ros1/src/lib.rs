@@ -135,6 +135,9 @@ pub struct Ros1DataPlane {
 
 impl Drop for Ros1DataPlane {
     fn drop(&mut self) {
+        self.core
+            .closed
+            .store(true, std::sync::atomic::Ordering::Relaxed);
         for t in &self.tasks {
             t.abort();
         }
@@ -195,6 +198,7 @@ impl Ros1DataPlane {
             wake: Notify::new(),
             timeout: config.call_timeout,
             updating: Mutex::new(BTreeMap::new()),
+            closed: std::sync::atomic::AtomicBool::new(false),
         });
         let mut tasks = vec![
             tokio::spawn(http::serve(
@@ -328,7 +332,12 @@ async fn get_pids(nodes: &[(String, String)], timeout: Duration) -> Vec<PidReply
             tokio::spawn(async move {
                 match http::call(&api, "getPid", &[Value::str(MASTER_CALLER_ID)], timeout).await {
                     Ok(v) => pid_of(&v).map_or(PidReply::Silent, PidReply::Pid),
-                    Err(http::HttpError::Io { .. } | http::HttpError::BadUri(_)) => PidReply::Gone,
+                    Err(http::HttpError::Io { source, .. })
+                        if source.kind() == std::io::ErrorKind::ConnectionRefused =>
+                    {
+                        PidReply::Gone
+                    }
+                    Err(http::HttpError::BadUri(_)) => PidReply::Gone,
                     Err(_) => PidReply::Silent,
                 }
             })

@@ -115,6 +115,9 @@ fn kill_and_restart_keeps_graph_params_and_connections() {
     wait_for("thawed listener receives", Duration::from_secs(20), || {
         recent(&frozen_p) > 20
     });
+    // Past the backlog of its socket: still connected, at the talker's rate.
+    let rf = measure_rate(&frozen_p, 3.0);
+    assert!(rf >= 20.0, "thawed listener at {rf} Hz of 30");
     let info = env.run("rostopic", &["info", &topic]);
     assert!(info.contains(&frozen), "{info}");
     // a new subscriber still connects to the old publisher

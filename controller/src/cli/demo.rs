@@ -157,14 +157,18 @@ impl PrivateRobot {
     /// not flow: [`describe_stack`] of its nodes and ROS graph.
     pub async fn describe(&self) -> String {
         let rt = self.robot.runtime();
-        let nodes = rt.inventory().await.unwrap_or_default();
-        match rt.graph().await {
-            Ok(g) => describe_stack(&nodes, &g),
-            Err(e) => format!(
-                "{}  (no ROS graph: {e})",
-                describe_stack(&nodes, &Graph::default())
-            ),
+        let (nodes, graph) = (rt.inventory().await, rt.graph().await);
+        let mut text = describe_stack(
+            nodes.as_deref().unwrap_or_default(),
+            graph.as_ref().unwrap_or(&Graph::default()),
+        );
+        if let Err(e) = nodes {
+            text += &format!("\n    (no node inventory: {e})");
         }
+        if let Err(e) = graph {
+            text += &format!("\n    (no ROS graph: {e})");
+        }
+        text
     }
 }
 

@@ -285,6 +285,10 @@ pub struct Run {
     /// when that verification fails too.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub tipped: Option<Trigger>,
+    /// Whether this run's trials already had their one retry after a tip:
+    /// the next tip relearns cold.
+    #[serde(default)]
+    pub tip_retried: bool,
 }
 
 impl Run {
@@ -325,6 +329,7 @@ impl Run {
             current: ResourceConfig::default(),
             verified: None,
             tipped: None,
+            tip_retried: false,
         }
     }
 
@@ -547,6 +552,7 @@ pub fn step(mut run: Run, input: Input, env: &Env<'_>) -> (Run, Vec<Output>) {
             },
         ) => {
             run.context = Some(context.clone());
+            run.tipped = None;
             match known {
                 Some(p) if !skip_library && library::learned_for(&p, env.spec) => {
                     run.library_hits += 1;
@@ -567,7 +573,7 @@ pub fn step(mut run: Run, input: Input, env: &Env<'_>) -> (Run, Vec<Output>) {
                 known => {
                     run.trials.clear();
                     run.rejected.clear();
-                    run.tipped = None;
+                    run.tip_retried = false;
                     run.optimizer = None;
                     run.baseline = None;
                     // A violation of a config that held means the workload

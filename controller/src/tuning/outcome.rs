@@ -278,19 +278,27 @@ pub fn paused_inputs(stack: &RobotStack, graph: &Graph, apps: &[String]) -> Vec<
 /// (it passed its trial and verification after a drain, then a burst filled
 /// the backlog) and the run's other trials still hold. The second is cheaper
 /// to try: when the config came from this run's trials, reject that trial and
-/// verify the next best once (drained first); if that fails too, relearn cold.
-/// `None`: nothing to try (a library or baseline config, or no feasible trial
-/// left), so relearn now.
+/// verify the next best (drained first); if that fails too, relearn cold.
+/// Once per run: a second tip relearns cold. `None`: nothing to try (a
+/// library or baseline config, the retry spent, or no feasible trial left),
+/// so relearn now.
 pub fn after_tip(
     run: &mut Run,
     env: &Env<'_>,
     violation: &Trigger,
     out: &mut Vec<Output>,
 ) -> Option<State> {
-    let index = match run.applied {
-        Some(Candidate::Trial { index } | Candidate::Backoff { index, .. }) => index,
+    let (index, held) = match run.applied {
+        Some(Candidate::Trial { index }) => (index, format!("trial {index}")),
+        Some(Candidate::Backoff { index, fraction }) => (
+            index,
+            format!("trial {index} backed off to {:.0} %", fraction * 100.0),
+        ),
         _ => return None,
     };
+    if run.tip_retried {
+        return None;
+    }
     if !run.rejected.contains(&index) {
         run.rejected.push(index);
     }
@@ -298,10 +306,11 @@ pub fn after_tip(
     out.push(normal(
         "VerifyingNextBest",
         format!(
-            "trial {index}'s config held its verification, then tipped; verifying trial {next}, the next best, before relearning"
+            "the config of {held} held its verification, then tipped; verifying trial {next}, the next best, before relearning"
         ),
     ));
     run.tipped = Some(violation.clone());
+    run.tip_retried = true;
     let verify = State::VerifyApply {
         candidate: Candidate::Trial { index: next },
         config: run.trials[next].config.clone(),

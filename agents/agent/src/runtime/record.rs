@@ -2,13 +2,14 @@
 //! apps a remediation pauses, so the robot's situation can be replayed when
 //! relearning later. A recording is `rosbag record -O <dir>/<name>-<ms>.bag
 //! --size=<max MB> <topics>` against the runtime's master (rosbag stops at
-//! that size), in its own process group, with its
-//! output in `<dir>/<name>.log`; stopping sends SIGINT so rosbag closes the
-//! bag (it writes `<file>.active` and renames it when done) and waits for its
-//! recorder process as well as its wrapper, SIGKILL after [`STOP_TIMEOUT`]. One recording per name. Recordings live as long as the
-//! runtime: a runtime that stops stops them, and one that starts stops any
-//! that a killed runtime left running ([`Recordings::stop_orphans`]), so no
-//! bag grows unowned.
+//! that size), in its own process group, with its output in
+//! `<dir>/<name>.log`; stopping sends SIGINT so rosbag closes the bag (it
+//! writes `<file>.active` and renames it when done) and waits for its
+//! recorder process as well as its wrapper, SIGKILL after [`STOP_TIMEOUT`].
+//! One recording per name. Recordings live as long as the runtime: a runtime
+//! that stops stops them, and one that starts stops any that a killed
+//! runtime left running ([`Recordings::stop_orphans`]), so no bag grows
+//! unowned.
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -27,7 +28,8 @@ pub const STOP_TIMEOUT: Duration = Duration::from_secs(10);
 #[derive(Debug)]
 pub struct Recordings {
     dir: PathBuf,
-    /// Largest bag, in MB (`rosbag record --size`; rosbag stops there).
+    /// Largest bag, in MB (`rosbag record --size`; rosbag stops there);
+    /// 0: no cap.
     max_mb: u64,
     active: Mutex<BTreeMap<String, Active>>,
 }
@@ -64,7 +66,7 @@ pub fn valid_name(name: &str) -> bool {
 
 impl Recordings {
     /// Recordings under `dir` (created on first use), each bag at most
-    /// `max_mb` MB.
+    /// `max_mb` MB (0: no cap).
     pub fn new(dir: PathBuf, max_mb: u64) -> Recordings {
         Recordings {
             dir,
@@ -115,7 +117,7 @@ impl Recordings {
         cmd.arg("record")
             .arg("-O")
             .arg(&path)
-            .arg(format!("--size={}", self.max_mb))
+            .args((self.max_mb > 0).then(|| format!("--size={}", self.max_mb)))
             .args(topics)
             .env("ROS_MASTER_URI", master_uri)
             .env("ROS_HOME", &dir)
@@ -195,9 +197,17 @@ async fn finish(mut a: Active) -> PathBuf {
     // The `rosbag` wrapper (python) runs the recorder as its child and can
     // exit on SIGINT before the recorder has closed the bag (renamed
     // `<bag>.active`): wait for the recorder too.
-    let workers = group.map_or_else(Vec::new, |g| descendants(proc_root, g));
+    // Looked for before and after the signal: a wrapper that had just
+    // started may spawn its recorder in between (the recorder, in the same
+    // group, gets the signal too).
+    let mut workers = group.map_or_else(Vec::new, |g| descendants(proc_root, g));
     if let Some(g) = group {
         send_group(g, libc::SIGINT);
+        for w in descendants(proc_root, g) {
+            if !workers.contains(&w) {
+                workers.push(w);
+            }
+        }
     }
     let all_gone = async {
         let _ = a.child.wait().await;

@@ -400,8 +400,8 @@ fn safe_exploration_is_off_when_no_config_can_be_worse_than_the_baseline() {
 }
 
 /// A held trial config tips: the next best is verified before relearning,
-/// the run's trials kept; if it holds it is monitored (and learned), if not
-/// the run relearns cold.
+/// the run's trials kept; if it holds it is monitored (and learned, and a
+/// second tip relearns), if not the run relearns cold.
 #[test]
 fn a_held_config_that_tips_verifies_the_next_best_before_relearning_cold() {
     let (st, sp) = (stack(), spec(1.0, 5));
@@ -432,6 +432,10 @@ fn a_held_config_that_tips_verifies_the_next_best_before_relearning_cold() {
     assert_eq!(name(&held.state), "Monitor");
     assert_eq!(held.tipped, None);
     assert_eq!(held.applied, Some(Candidate::Trial { index: 0 }));
+    // The retry is spent: a second tip relearns.
+    let (again, out) = step(held, report(&BAD, 5.0), &env);
+    assert_eq!(reasons(&out), vec!["ConstraintViolated"]);
+    assert_eq!(name(&again.state), "Observe");
 
     let (failed, out) = verify(tipped, &env, &BAD);
     assert_eq!(reasons(&out), vec!["VerificationFailed"]);
