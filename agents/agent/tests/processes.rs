@@ -230,12 +230,6 @@ async fn app_stop_is_graceful_and_start_brings_it_back() {
     assert!(agent.stop_app("ghost").await.is_err());
 }
 
-/// The scheduler state letter of `pid` (`T`: stopped by a signal).
-fn proc_state(pid: u32) -> Option<char> {
-    let s = std::fs::read_to_string(format!("/proc/{pid}/stat")).ok()?;
-    s.rsplit_once(')')?.1.trim_start().chars().next()
-}
-
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_frozen_app_uses_no_cpu_until_thawed_and_still_stops_gracefully() {
     let mut env = Env::new();

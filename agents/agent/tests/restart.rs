@@ -1,5 +1,6 @@
 //! `kill -9` of the agent binary, then a restart: everything is re-adopted
-//! with limits intact, and no run node is started twice (root needed).
+//! with limits intact, a frozen app stays frozen until thawed, and no run
+//! node is started twice (root needed).
 
 mod common;
 
@@ -186,4 +187,52 @@ fn a_changed_stack_lifts_stale_limits_of_core_nodes() {
     );
     let (code, _) = request(&socket, "POST", "/v1/apps/a/stop", None).unwrap();
     assert_eq!(code, 200);
+}
+
+#[test]
+fn an_app_frozen_before_a_kill_9_stays_frozen_and_thaws_after_the_restart() {
+    let env = Env::new();
+    let stack = env.path("stack.json");
+    std::fs::write(
+        &stack,
+        r#"{"apps":[{"name":"pause","nodes":[
+        {"name":"/napper","run":{"command":"/bin/sleep","args":["300"]}}]}]}"#,
+    )
+    .unwrap();
+    let socket = env.path("agent.sock");
+    let b = v1_backend(&env.root);
+    let mut first = spawn_agent(&env, &stack, &socket);
+    wait_api(&socket);
+    let deadline = Instant::now() + Duration::from_secs(20);
+    while pids_of(&b, "/napper").is_empty() {
+        assert!(Instant::now() < deadline, "node never came up");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let pid = pids_of(&b, "/napper")[0];
+    let (code, body) = request(&socket, "POST", "/v1/apps/pause/freeze", None).unwrap();
+    assert_eq!(code, 200, "{body}");
+    assert_eq!(proc_state(pid), Some('T'));
+
+    first.0.kill().unwrap();
+    first.0.wait().unwrap();
+    let _second = spawn_agent(&env, &stack, &socket);
+    wait_api(&socket);
+    let (_, body) = request(&socket, "GET", "/v1/nodes", None).unwrap();
+    let nodes: serde_json::Value = serde_json::from_str(&body).unwrap();
+    let napper = &nodes.as_array().unwrap()[0];
+    assert_eq!(napper["frozen"], true, "{napper}");
+    assert_eq!(
+        napper["mainPid"], pid,
+        "re-attached, not restarted: {napper}"
+    );
+    assert_eq!(proc_state(pid), Some('T'), "still stopped");
+
+    let (code, body) = request(&socket, "POST", "/v1/apps/pause/thaw", None).unwrap();
+    assert_eq!(code, 200, "{body}");
+    assert_ne!(proc_state(pid), Some('T'), "thawed");
+    let (_, body) = request(&socket, "GET", "/v1/nodes", None).unwrap();
+    assert!(body.contains("\"frozen\":false"), "{body}");
+    let (code, _) = request(&socket, "POST", "/v1/apps/pause/stop", None).unwrap();
+    assert_eq!(code, 200);
+    assert!(pids_of(&b, "/napper").is_empty());
 }

@@ -211,6 +211,12 @@ pub fn stack_json(json: &str) -> StackSpec {
     serde_json::from_str(json).unwrap()
 }
 
+/// The scheduler state letter of `pid` (`T`: stopped by a signal).
+pub fn proc_state(pid: u32) -> Option<char> {
+    let s = std::fs::read_to_string(format!("/proc/{pid}/stat")).ok()?;
+    s.rsplit_once(')')?.1.trim_start().chars().next()
+}
+
 /// SIGKILL by pid (no `kill` binary needed).
 pub fn kill9(pid: u32) {
     #[allow(unsafe_code)]
