@@ -48,6 +48,15 @@ fn wait_api(socket: &Path) {
     }
 }
 
+/// Polls `cond` every 20 ms; fails with `what` after 20 s.
+fn wait(what: &str, cond: impl Fn() -> bool) {
+    let deadline = Instant::now() + Duration::from_secs(20);
+    while !cond() {
+        assert!(Instant::now() < deadline, "{what}");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
 fn pids_of(b: &dyn CgroupBackend, n: &str) -> Vec<u32> {
     b.pids(&node(n)).unwrap_or_default()
 }
@@ -79,11 +88,9 @@ fn kill_9_then_restart_readopts_everything_with_limits_intact() {
 
     let mut first = spawn_agent(&env, &stack, &socket);
     wait_api(&socket);
-    let deadline = Instant::now() + Duration::from_secs(20);
-    while pids_of(&b, "/worker").is_empty() || pids_of(&b, "/found") != [target_pid] {
-        assert!(Instant::now() < deadline, "nodes never came up");
-        std::thread::sleep(Duration::from_millis(20));
-    }
+    wait("nodes never came up", || {
+        !pids_of(&b, "/worker").is_empty() && pids_of(&b, "/found") == [target_pid]
+    });
     let (code, body) = request(
         &socket,
         "PUT",
@@ -142,15 +149,10 @@ fn kill_9_then_restart_readopts_everything_with_limits_intact() {
 
     // A re-attached run node is still supervised: killing it restarts it.
     kill9(worker_pid[0]);
-    let deadline = Instant::now() + Duration::from_secs(20);
-    loop {
+    wait("re-attached node not restarted", || {
         let now = pids_of(&b, "/worker");
-        if !now.is_empty() && now != worker_pid {
-            break;
-        }
-        assert!(Instant::now() < deadline, "re-attached node not restarted");
-        std::thread::sleep(Duration::from_millis(20));
-    }
+        !now.is_empty() && now != worker_pid
+    });
     let (code, _) = request(&socket, "POST", "/v1/apps/a/stop", None).unwrap();
     assert_eq!(code, 200);
     assert!(pids_of(&b, "/worker").is_empty() && pids_of(&b, "/found").is_empty());
@@ -203,11 +205,7 @@ fn an_app_frozen_before_a_kill_9_stays_frozen_and_thaws_after_the_restart() {
     let b = v1_backend(&env.root);
     let mut first = spawn_agent(&env, &stack, &socket);
     wait_api(&socket);
-    let deadline = Instant::now() + Duration::from_secs(20);
-    while pids_of(&b, "/napper").is_empty() {
-        assert!(Instant::now() < deadline, "node never came up");
-        std::thread::sleep(Duration::from_millis(20));
-    }
+    wait("node never came up", || !pids_of(&b, "/napper").is_empty());
     let pid = pids_of(&b, "/napper")[0];
     let (code, body) = request(&socket, "POST", "/v1/apps/pause/freeze", None).unwrap();
     assert_eq!(code, 200, "{body}");
