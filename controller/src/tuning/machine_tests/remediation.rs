@@ -114,24 +114,20 @@ fn a_remediation_records_what_the_paused_apps_subscribe_to() {
 
 #[test]
 fn a_remediation_persisted_before_freezing_existed_still_reads() {
-    let old: State =
-        serde_json::from_value(serde_json::json!({"state": "remediateStop", "apps": ["det"]}))
-            .unwrap();
-    assert_eq!(
-        old,
-        State::RemediatePause {
-            remedy: paused("det")
-        }
-    );
-    let undo: State =
-        serde_json::from_value(serde_json::json!({"state": "remediateUndo", "apps": ["det"]}))
-            .unwrap();
-    assert_eq!(
-        undo,
-        State::RemediateUndo {
-            remedy: paused("det")
-        }
-    );
+    let remedy = paused("det");
+    for (tag, want) in [
+        (
+            "remediateStop",
+            State::RemediatePause {
+                remedy: remedy.clone(),
+            },
+        ),
+        ("remediateUndo", State::RemediateUndo { remedy }),
+    ] {
+        let old: State =
+            serde_json::from_value(serde_json::json!({"state": tag, "apps": ["det"]})).unwrap();
+        assert_eq!(old, want, "{tag}");
+    }
     // And today's form round-trips.
     let now = State::Remediating {
         remedy: Remedy {

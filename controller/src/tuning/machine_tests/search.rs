@@ -88,17 +88,23 @@ fn with_two_trials(env: &Env<'_>) -> Run {
         period_micros: 20_000,
     };
     for (x, det) in [([1.0, 1.5], 8.0), ([1.9, 1.5], 9.0)] {
-        let Input::Measured(r) = report(&OK, det) else {
-            unreachable!()
-        };
-        run.trials.push(TrialRecord {
-            config: run.knobs.to_config(&x),
-            x: x.to_vec(),
-            eval: measure::evaluate(&env.defs(), &r, Default::default()),
-            censored: false,
-        });
+        push_trial(&mut run, env, &x, det);
     }
     run
+}
+
+/// Records a trial at `x` (a point of `run.knobs`) that met /cmd_vel and
+/// gave detection `det`.
+fn push_trial(run: &mut Run, env: &Env<'_>, x: &[f64], det: f64) {
+    let Input::Measured(r) = report(&OK, det) else {
+        unreachable!()
+    };
+    run.trials.push(TrialRecord {
+        config: run.knobs.to_config(x),
+        x: x.to_vec(),
+        eval: measure::evaluate(&env.defs(), &r, Default::default()),
+        censored: false,
+    });
 }
 
 /// Verify the run's current candidate: apply, settle, measure `cmd`.
@@ -341,15 +347,7 @@ fn the_trial_to_verify_is_the_near_best_one_that_gives_non_core_apps_the_least()
     run.trials.clear();
     // /detector's CPU (non-core), /planner's (core); `det` targets 10.
     for (x, det) in [([1.9, 1.5], 12.0), ([1.0, 1.5], 9.7), ([0.5, 1.5], 8.0)] {
-        let Input::Measured(r) = report(&OK, det) else {
-            unreachable!()
-        };
-        run.trials.push(TrialRecord {
-            config: run.knobs.to_config(&x),
-            x: x.to_vec(),
-            eval: measure::evaluate(&env.defs(), &r, Default::default()),
-            censored: false,
-        });
+        push_trial(&mut run, &env, &x, det);
     }
     assert_eq!(
         search::best_trial(&run),
