@@ -256,6 +256,12 @@ pub struct Tuning {
     pub safety_floor: Option<f64>,
     #[serde(default)]
     pub scalarization: Scalarization,
+    /// How long a run waits, before it measures anything, for the stack's
+    /// declared nodes to register and its metrics' topics to flow (nodes that
+    /// load a model take seconds). Past it the run goes on and says which
+    /// nodes never came up.
+    #[serde(default = "default_startup_timeout")]
+    pub startup_timeout_seconds: f64,
 }
 
 impl Default for Tuning {
@@ -268,6 +274,7 @@ impl Default for Tuning {
             seed: 0,
             safety_floor: None,
             scalarization: Scalarization::MaxMin,
+            startup_timeout_seconds: default_startup_timeout(),
         }
     }
 }
@@ -392,6 +399,10 @@ pub struct KnobStatus {
     pub name: String,
     pub min: f64,
     pub max: f64,
+    /// Set when the knob is not searched but held at this value: it acts
+    /// only on a non-core node whose outputs reach no metric.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pinned_at: Option<f64>,
 }
 
 /// One measured config: baseline, trial or library re-apply.
@@ -437,6 +448,11 @@ fn default_min_topic_rate() -> f64 {
 fn default_min_adaptor_rate() -> f64 {
     0.5
 }
+
+fn default_startup_timeout() -> f64 {
+    60.0
+}
+
 fn default_trial_seconds() -> f64 {
     5.0
 }

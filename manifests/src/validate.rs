@@ -368,6 +368,9 @@ fn performance_spec(e: &mut Errors, p: &PerformanceSpec) {
     if !(t.settle_seconds.is_finite() && t.settle_seconds >= 0.0) {
         e.add("spec.tuning.settleSeconds", "must be zero or more");
     }
+    if !(t.startup_timeout_seconds.is_finite() && t.startup_timeout_seconds >= 0.0) {
+        e.add("spec.tuning.startupTimeoutSeconds", "must be zero or more");
+    }
     if !(1..=1000).contains(&t.max_trials) {
         e.add(
             "spec.tuning.maxTrials",

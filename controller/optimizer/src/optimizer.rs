@@ -58,6 +58,9 @@ use crate::safe_region::{SLOPE_FACTOR, SafeRegion};
 use crate::trust::TrustRegion;
 pub use crate::trust::TrustRegionSettings;
 
+/// Two points this close in every unit-cube coordinate are the same config.
+const MEASURED_TOLERANCE: f64 = 1e-6;
+
 /// Tuning knobs of the optimizer itself.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Settings {
@@ -501,9 +504,19 @@ impl Optimizer {
         )
     }
 
+    /// Whether a point was measured already. Compared in the unit cube with a
+    /// tolerance: the current config arrives in real units and comes back
+    /// from the cube a rounding error away, and an exact comparison let the
+    /// initial design measure the current config a second time.
     fn measured(&self, u: &[f64]) -> bool {
-        let x = self.problem.space.from_unit(u);
-        self.observations.iter().any(|o| o.x == x)
+        let space = &self.problem.space;
+        self.observations.iter().any(|o| {
+            space
+                .to_unit(&o.x)
+                .iter()
+                .zip(u)
+                .all(|(a, b)| (a - b).abs() <= MEASURED_TOLERANCE)
+        })
     }
 
     fn next_proposal(&mut self) -> Result<Proposal> {

@@ -4,6 +4,14 @@
 //! policy selects (topic above `minTopicRateHz` touching a non-core app, plus
 //! include/exclude) with bounds `[minRateHz, source rate]`. Maps optimizer
 //! points to `ResourceConfig`s and back.
+//!
+//! The live graph prunes the space: a non-core node whose outputs reach no
+//! metric (no path of topics from it to a metric's topic, and no metric on
+//! its CPU) cannot help an objective and only takes CPU from the others, so
+//! its CPU knob and the adaptors feeding it are *pinned* at their minimum and
+//! get no search dimension ([`KnobSpace::pinned`]). Knobs that act on the same
+//! node (its CPU and its input adaptors) are reported as acting together
+//! ([`KnobSpace::together`]).
 
 use std::collections::BTreeMap;
 
@@ -40,8 +48,17 @@ pub struct KnobDef {
 /// The knobs of a run, in optimizer order.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct KnobSpace {
+    /// The searched knobs (the optimizer's dimensions).
     pub knobs: Vec<KnobDef>,
     pub period_micros: u64,
+    /// Knobs held at their minimum and not searched: they act only on
+    /// non-core nodes whose outputs reach no metric.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub pinned: Vec<KnobDef>,
+    /// Groups of searched knobs that act on the same node (its CPU and the
+    /// adaptors feeding it): each group's knobs move its output together.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub together: Vec<Vec<String>>,
 }
 
 /// The knob space could not be built.
@@ -73,6 +90,7 @@ pub fn derive(
     cpus: f64,
 ) -> Result<KnobSpace, KnobError> {
     let cpu = &spec.knobs.cpu;
+    let feeds = feeds_a_metric(graph, spec);
     let mut knobs = Vec::new();
     for (app, node) in stack.nodes() {
         if !graph.nodes.contains_key(&node.name) {
@@ -139,10 +157,64 @@ pub fn derive(
             });
         }
     }
+    let core_of: BTreeMap<&str, bool> = stack
+        .nodes()
+        .map(|(app, n)| (n.name.as_str(), app.core))
+        .collect();
+    // A knob acting only on a non-core node that feeds no metric is pinned.
+    let acts_on = |k: &KnobDef| match &k.target {
+        KnobTarget::Cpu { node } => node.clone(),
+        KnobTarget::Adaptor { subscriber, .. } => subscriber.clone(),
+    };
+    let idle = |k: &KnobDef| {
+        let n = acts_on(k);
+        core_of.get(n.as_str()) == Some(&false) && !feeds.contains(&n)
+    };
+    let (pinned, knobs): (Vec<KnobDef>, Vec<KnobDef>) = knobs.into_iter().partition(idle);
+    let mut by_node: BTreeMap<String, Vec<String>> = BTreeMap::new();
+    for k in &knobs {
+        by_node.entry(acts_on(k)).or_default().push(k.name.clone());
+    }
+    let together = by_node.into_values().filter(|g| g.len() > 1).collect();
     Ok(KnobSpace {
         knobs,
         period_micros: cpu.period_micros,
+        pinned,
+        together,
     })
+}
+
+/// The nodes whose work can reach a metric (pure): a node that publishes a
+/// metric's topic or has a CPU metric, and every node with a path of topics
+/// (publisher → subscriber → what it publishes → ...) to such a node.
+pub fn feeds_a_metric(
+    graph: &Graph,
+    spec: &PerformanceSpecSpec,
+) -> std::collections::BTreeSet<String> {
+    use std::collections::BTreeSet;
+    let mut reached: BTreeSet<String> = BTreeSet::new();
+    for m in &spec.metrics {
+        if let Some(t) = &m.source.topic_rate
+            && let Some(info) = graph.topics.get(&t.topic)
+        {
+            reached.extend(info.publishers.iter().cloned());
+        }
+        if let Some(c) = &m.source.cpu_usage {
+            reached.insert(c.node.clone());
+        }
+    }
+    // Walk upstream: the publishers of every topic a reached node subscribes to.
+    let mut frontier: Vec<String> = reached.iter().cloned().collect();
+    while let Some(n) = frontier.pop() {
+        for t in graph.topics.values().filter(|t| t.subscribers.contains(&n)) {
+            for p in &t.publishers {
+                if reached.insert(p.clone()) {
+                    frontier.push(p.clone());
+                }
+            }
+        }
+    }
+    reached
 }
 
 impl KnobSpace {
@@ -166,7 +238,8 @@ impl KnobSpace {
             cpu_period_micros: Some(self.period_micros),
             ..ResourceConfig::default()
         };
-        for (k, &v) in self.knobs.iter().zip(x) {
+        let pinned = self.pinned.iter().map(|k| (k, k.min));
+        for (k, v) in self.knobs.iter().zip(x.iter().copied()).chain(pinned) {
             let v = v.clamp(k.min, k.max);
             match &k.target {
                 KnobTarget::Cpu { node } => {
@@ -255,6 +328,23 @@ impl KnobSpace {
         )
     }
 
+    /// The most restrictive point next to `x`: every knob that only
+    /// restricts a non-core app at its minimum, the others as in `x`. Among
+    /// the configs a run can try it leaves the core services the most; `None`
+    /// when no knob restricts a non-core app or `x` is that point already.
+    pub fn restrictive_corner(&self, x: &[f64]) -> Option<Vec<f64>> {
+        if self.knobs.len() != x.len() {
+            return None;
+        }
+        let y: Vec<f64> = self
+            .knobs
+            .iter()
+            .zip(x)
+            .map(|(k, &v)| if k.restricts_non_core { k.min } else { v })
+            .collect();
+        (self.to_config(&y) != self.to_config(x)).then_some(y)
+    }
+
     /// How much the point `x` gives the non-core apps: the mean position of
     /// the knobs that only restrict a non-core app, each from 0 at its minimum
     /// to 1 at its maximum (adaptor rates on a log scale, as the optimizer
@@ -282,16 +372,25 @@ impl KnobSpace {
         }
     }
 
-    /// The knob list as status shows it.
+    /// The knob list as status shows it: the searched knobs, then the pinned
+    /// ones with the value they are held at.
     pub fn status(&self) -> Vec<KnobStatus> {
-        self.knobs
-            .iter()
-            .map(|k| KnobStatus {
+        let searched = self.knobs.iter().map(|k| (k, None));
+        let pinned = self.pinned.iter().map(|k| (k, Some(k.min)));
+        searched
+            .chain(pinned)
+            .map(|(k, pinned_at)| KnobStatus {
                 name: k.name.clone(),
                 min: k.min,
                 max: k.max,
+                pinned_at,
             })
             .collect()
+    }
+
+    /// The pinned knobs' names.
+    pub fn pinned_names(&self) -> Vec<&str> {
+        self.pinned.iter().map(|k| k.name.as_str()).collect()
     }
 }
 
@@ -324,8 +423,13 @@ mod tests {
     fn spec() -> PerformanceSpecSpec {
         serde_json::from_value(serde_json::json!({
             "stackRef": {"name": "s"},
-            "metrics": [{"name": "cmd", "app": "nav",
-                "source": {"topicRate": {"topic": "/cmd_vel"}}, "target": {"atLeast": 35}}]
+            "metrics": [
+                {"name": "cmd", "app": "nav",
+                    "source": {"topicRate": {"topic": "/cmd_vel"}}, "target": {"atLeast": 35}},
+                {"name": "det", "app": "det",
+                    "source": {"topicRate": {"topic": "/detections"}}, "target": {"atLeast": 5}},
+                {"name": "web", "app": "web",
+                    "source": {"topicRate": {"topic": "/overlay"}}, "target": {"atLeast": 10}}]
         }))
         .unwrap()
     }
@@ -360,6 +464,8 @@ mod tests {
         topic("/scan", "/lidar", &["/planner", "/web"]);
         topic("/image", "/camera", &["/detector"]);
         topic("/cmd_vel", "/planner", &[]);
+        topic("/detections", "/detector", &[]);
+        topic("/overlay", "/web", &[]);
         g
     }
 
@@ -447,6 +553,68 @@ mod tests {
             let s = derive(&stack(), &spec, &graph(&running), &rates(), 2.0).unwrap();
             assert_eq!(names(&s), want, "{what}");
         }
+    }
+
+    #[test]
+    fn a_non_core_node_that_feeds_no_metric_is_pinned_at_its_minimum_and_not_searched() {
+        let all = ["/lidar", "/planner", "/camera", "/detector", "/web"];
+        let mut sp = spec();
+        sp.metrics.retain(|m| m.name != "web");
+        let s = derive(&stack(), &sp, &graph(&all), &rates(), 2.0).unwrap();
+        assert_eq!(
+            names(&s),
+            vec!["cpu:/camera", "cpu:/detector", "rate:/image>/detector"],
+            "searched"
+        );
+        assert_eq!(s.pinned_names(), vec!["cpu:/web", "rate:/scan>/web"]);
+        // The camera feeds the detector, whose output is a metric: searched.
+        let reach = feeds_a_metric(&graph(&all), &sp);
+        assert!(reach.contains("/camera") && reach.contains("/lidar"));
+        assert!(!reach.contains("/web"));
+        // Every config holds the pinned knobs at their minimum.
+        let cfg = s.to_config(&[1.0, 1.0, 10.0]);
+        assert_eq!(cfg.cpu["/web"], 0.05);
+        assert!(
+            cfg.adaptors
+                .iter()
+                .any(|a| a.subscriber == "/web" && a.rate_hz == 0.5)
+        );
+        // Status lists them with the value they are held at.
+        let st = s.status();
+        assert_eq!(st.len(), 5);
+        assert_eq!(st[3].pinned_at, Some(0.05));
+        assert_eq!(st[0].pinned_at, None);
+        // The detector's CPU and its input adaptor act together.
+        assert_eq!(
+            s.together,
+            vec![vec![
+                "cpu:/detector".to_string(),
+                "rate:/image>/detector".to_string()
+            ]]
+        );
+        // No metric on the detector's output either: the camera feeds only
+        // the detector, so the whole det app is pinned.
+        sp.metrics.retain(|m| m.name != "det");
+        let s = derive(&stack(), &sp, &graph(&all), &rates(), 2.0).unwrap();
+        assert!(names(&s).is_empty(), "{:?}", names(&s));
+        assert_eq!(s.pinned.len(), 5);
+    }
+
+    #[test]
+    fn the_most_restrictive_corner_puts_every_non_core_knob_at_its_minimum() {
+        let mut sp = spec();
+        sp.knobs.cpu.fix_core_nodes = false;
+        let all = ["/lidar", "/planner", "/camera", "/detector", "/web"];
+        let s = derive(&stack(), &sp, &graph(&all), &rates(), 2.0).unwrap();
+        let top: Vec<f64> = s.knobs.iter().map(|k| k.max).collect();
+        let corner = s.restrictive_corner(&top).unwrap();
+        let want: Vec<f64> = s
+            .knobs
+            .iter()
+            .map(|k| if k.restricts_non_core { k.min } else { k.max })
+            .collect();
+        assert_eq!(corner, want);
+        assert_eq!(s.restrictive_corner(&corner), None, "already there");
     }
 
     #[test]
@@ -542,6 +710,7 @@ mod tests {
         let cpu_only = KnobSpace {
             knobs: s.knobs[..5].to_vec(),
             period_micros: s.period_micros,
+            ..KnobSpace::default()
         };
         assert_eq!(cpu_only.drain_point(&x[..5]), None, "no input to hold back");
     }

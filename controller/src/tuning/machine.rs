@@ -1,5 +1,6 @@
 //! The tuning run as one state enum and one transition function (pure; the
-//! paper's Fig. 3): Observe (graph, context, library) → Baseline (measure the
+//! paper's Fig. 3): StartUp (wait for the stack's nodes and topics, see
+//! [`super::startup`]) → Observe (graph, context, library) → Baseline (measure the
 //! current config) → trials (drain, apply, settle, profile; early stop of a
 //! clearly infeasible trial as a censored observation) → Verify the best
 //! (drain, apply, settle, measure; a failing best trial is backed off first)
@@ -34,6 +35,7 @@ use super::search::{baseline_done, next_trial, record_trial, settled};
 pub use super::search::{baseline_is_safe, every_config_as_safe_as};
 pub(crate) use super::search::{drain_first, finish};
 use super::settle::{self, Wait};
+use super::startup;
 
 /// Satisfaction a verified config must reach.
 pub const SATISFIED: f64 = 0.99;
@@ -79,6 +81,15 @@ impl Env<'_> {
     fn monitor_ms(&self) -> u64 {
         Self::ms(self.spec.monitoring.violation_window_seconds.ceil())
     }
+    /// How long a trial near the boundary is measured at most (see
+    /// [`measure::near_boundary`]): enough windows for the count rule, and at
+    /// least twice the trial.
+    fn extended_trial_ms(&self) -> u64 {
+        (measure::COUNTED_WINDOWS as u64 * 1000).max(2 * self.trial_ms())
+    }
+    fn startup_timeout_ms(&self) -> u64 {
+        (self.spec.tuning.startup_timeout_seconds * 1000.0).round() as u64
+    }
 }
 
 /// Which config a verification is for.
@@ -101,6 +112,15 @@ pub enum Candidate {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "state", rename_all = "camelCase")]
 pub enum State {
+    /// Wait until the stack's declared nodes are registered and its metrics'
+    /// topics flow, or the start-up timeout passed; then observe.
+    StartUp {
+        trigger: Trigger,
+        #[serde(default)]
+        waited_ms: u64,
+        #[serde(default)]
+        wait: startup::Wait,
+    },
     /// Read the graph and the context; look the context up in the library.
     Observe {
         trigger: Trigger,
@@ -289,6 +309,11 @@ pub struct Run {
     /// the next tip relearns cold.
     #[serde(default)]
     pub tip_retried: bool,
+    /// The trial that measures the most restrictive config (every non-core
+    /// knob at its minimum) when the baseline missed a core target: if it
+    /// misses too, no config can meet it (see [`super::search`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub corner_trial: Option<usize>,
 }
 
 impl Run {
@@ -311,10 +336,7 @@ impl Run {
 
     pub fn new(generation: i64, trigger: Trigger) -> Run {
         Run {
-            state: State::Observe {
-                trigger,
-                skip_library: false,
-            },
+            state: starting(trigger),
             generation,
             context: None,
             knobs: KnobSpace::default(),
@@ -330,6 +352,7 @@ impl Run {
             verified: None,
             tipped: None,
             tip_retried: false,
+            corner_trial: None,
         }
     }
 
@@ -358,7 +381,7 @@ impl Run {
     /// Status phase.
     pub fn phase(&self) -> &'static str {
         match &self.state {
-            State::Observe { .. } | State::Baseline { .. } => "Baseline",
+            State::StartUp { .. } | State::Observe { .. } | State::Baseline { .. } => "Baseline",
             State::TrialApply { .. } | State::TrialSettle { .. } | State::TrialProfile { .. } => {
                 "Tuning"
             }
@@ -444,11 +467,25 @@ pub(crate) fn warning(reason: &'static str, message: String) -> Output {
     }
 }
 
+/// The start of a run, or of a new context: wait for the stack, then observe.
+pub fn starting(trigger: Trigger) -> State {
+    State::StartUp {
+        trigger,
+        waited_ms: 0,
+        wait: startup::Wait::ReadGraph,
+    }
+}
+
 /// The effect of the current state.
 pub fn effect(run: &Run, env: &Env<'_>) -> Effect {
     let defs = env.defs();
     let probe = |ms: u64| Effect::Measure(measure::request(&defs, &[], ms, 1000));
     match &run.state {
+        State::StartUp { wait, .. } => match wait {
+            startup::Wait::ReadGraph => Effect::Observe,
+            startup::Wait::Sleep { .. } => Effect::Sleep(Duration::from_millis(startup::POLL_MS)),
+            startup::Wait::Probe { .. } => probe(startup::PROBE_MS),
+        },
         State::Observe { .. } => Effect::Observe,
         State::Baseline { graph, .. } => {
             let topics: Vec<String> = graph.topics.keys().cloned().collect();
@@ -475,8 +512,11 @@ pub fn effect(run: &Run, env: &Env<'_>) -> Effect {
             let done = partial.as_ref().map_or(0, |p| p.duration_ms);
             let chunk = if done == 0 && total > EARLY_STOP_MS {
                 EARLY_STOP_MS
+            } else if done < total {
+                total - done
             } else {
-                total - done.min(total)
+                // Near the boundary: measured on to the extended length.
+                env.extended_trial_ms().saturating_sub(done)
             };
             probe(chunk.max(1000))
         }
@@ -510,13 +550,20 @@ pub fn step(mut run: Run, input: Input, env: &Env<'_>) -> (Run, Vec<Output>) {
         }
     }
     run.state = match (state, input) {
-        // Outside triggers: while monitoring (or verifying a library config), re-observe.
+        // Outside triggers: while monitoring (or verifying a library config),
+        // re-observe; a new context first waits for its nodes to come up.
         (State::Monitor { .. }, Input::Trigger(t)) => {
             out.push(warning(t.reason(), t.message()));
-            let skip = matches!(t, Trigger::ConstraintViolated { .. });
-            State::Observe {
-                trigger: t,
-                skip_library: skip,
+            match t {
+                Trigger::ConstraintViolated { .. } => State::Observe {
+                    trigger: t,
+                    skip_library: true,
+                },
+                Trigger::ContextChanged { .. } => starting(t),
+                t => State::Observe {
+                    trigger: t,
+                    skip_library: false,
+                },
             }
         }
         // The graph changed under a trial or a verification: its measurements
@@ -535,11 +582,16 @@ pub fn step(mut run: Run, input: Input, env: &Env<'_>) -> (Run, Vec<Output>) {
                 t.reason(),
                 format!("{}; the run starts over for the new context", t.message()),
             ));
-            State::Observe {
-                trigger: t,
-                skip_library: false,
-            }
+            starting(t)
         }
+        (
+            State::StartUp {
+                trigger,
+                waited_ms,
+                wait,
+            },
+            input,
+        ) => startup_step(trigger, waited_ms, wait, input, env, &defs, &mut out),
         (
             State::Observe {
                 skip_library,
@@ -553,6 +605,8 @@ pub fn step(mut run: Run, input: Input, env: &Env<'_>) -> (Run, Vec<Output>) {
         ) => {
             run.context = Some(context.clone());
             run.tipped = None;
+            // A new observation: no outcome of an earlier state stands.
+            run.reason = None;
             match known {
                 Some(p) if !skip_library && library::learned_for(&p, env.spec) => {
                     run.library_hits += 1;
@@ -574,6 +628,7 @@ pub fn step(mut run: Run, input: Input, env: &Env<'_>) -> (Run, Vec<Output>) {
                     run.trials.clear();
                     run.rejected.clear();
                     run.tip_retried = false;
+                    run.corner_trial = None;
                     run.optimizer = None;
                     run.baseline = None;
                     // A violation of a config that held means the workload
@@ -664,10 +719,28 @@ pub fn step(mut run: Run, input: Input, env: &Env<'_>) -> (Run, Vec<Output>) {
                 Some(p) => measure::concat(p, &r),
                 None => r,
             };
-            let complete = report.duration_ms >= env.trial_ms();
+            let long_enough = report.duration_ms >= env.trial_ms();
+            let extend = long_enough
+                && report.duration_ms < env.extended_trial_ms()
+                && measure::near_boundary(&defs, &report);
+            if extend
+                && partial
+                    .as_ref()
+                    .is_none_or(|p| p.duration_ms < env.trial_ms())
+            {
+                out.push(normal(
+                    "NearBoundary",
+                    format!(
+                        "trial {}: a core constraint is near its target; measuring up to {} s to tell",
+                        run.trials.len(),
+                        env.extended_trial_ms() / 1000
+                    ),
+                ));
+            }
+            let complete = long_enough && !extend;
             let floor = env.spec.tuning.safety_floor.unwrap_or(0.8);
             let censored =
-                !complete && measure::clearly_infeasible(&defs, &report, floor).is_some();
+                !long_enough && measure::clearly_infeasible(&defs, &report, floor).is_some();
             if complete || censored {
                 record_trial(&mut run, env, &defs, x, config, &report, censored, &mut out);
                 next_trial(&mut run, env, &defs, &mut out)
@@ -796,6 +869,105 @@ pub fn step(mut run: Run, input: Input, env: &Env<'_>) -> (Run, Vec<Output>) {
         (s, _) => s,
     };
     (run, out)
+}
+
+/// One step of the start-up wait (see [`startup`]).
+fn startup_step(
+    trigger: Trigger,
+    waited_ms: u64,
+    wait: startup::Wait,
+    input: Input,
+    env: &Env<'_>,
+    defs: &[MetricDef],
+    out: &mut Vec<Output>,
+) -> State {
+    use startup::Wait as W;
+    let timeout = env.startup_timeout_ms();
+    let at = |waited_ms: u64, wait: W| State::StartUp {
+        trigger: trigger.clone(),
+        waited_ms,
+        wait,
+    };
+    match (wait, input) {
+        (W::ReadGraph, Input::Observed { graph, .. }) => {
+            let missing = startup::missing(env.stack, &graph);
+            if !missing.is_empty() && waited_ms < timeout {
+                at(waited_ms, W::Sleep { missing })
+            } else {
+                at(
+                    waited_ms,
+                    W::Probe {
+                        missing,
+                        flowed: Default::default(),
+                        core_up_ms: None,
+                    },
+                )
+            }
+        }
+        (W::Sleep { .. }, Input::Slept) => at(waited_ms + startup::POLL_MS, W::ReadGraph),
+        (
+            W::Probe {
+                missing,
+                mut flowed,
+                core_up_ms,
+            },
+            Input::Measured(r),
+        ) => {
+            let waited = waited_ms + r.duration_ms;
+            flowed.extend(startup::flowing(defs, &r));
+            let core_up_ms = core_up_ms.or(startup::core_up(defs, &flowed).then_some(waited));
+            if !startup::done(defs, &flowed, core_up_ms, waited, timeout) {
+                return at(
+                    waited,
+                    W::Probe {
+                        missing,
+                        flowed,
+                        core_up_ms,
+                    },
+                );
+            }
+            let silent = startup::silent(defs, &flowed);
+            let secs = waited as f64 / 1000.0;
+            if !missing.is_empty() || !startup::core_up(defs, &flowed) {
+                out.push(warning(
+                    "StartupTimeout",
+                    format!(
+                        "after {secs:.0} s: {}{}; going on with the stack as it is",
+                        if missing.is_empty() {
+                            "every declared node registered".to_string()
+                        } else {
+                            format!("never registered: {}", missing.join(", "))
+                        },
+                        if silent.is_empty() {
+                            String::new()
+                        } else {
+                            format!("; no messages on the topics of {}", silent.join(", "))
+                        }
+                    ),
+                ));
+            } else {
+                out.push(normal(
+                    "StackUp",
+                    format!(
+                        "every declared node registered and {} after {secs:.0} s",
+                        if silent.is_empty() {
+                            "every metric's topic flows".to_string()
+                        } else {
+                            format!(
+                                "the core metrics' topics flow ({} silent)",
+                                silent.join(", ")
+                            )
+                        }
+                    ),
+                ));
+            }
+            State::Observe {
+                trigger,
+                skip_library: false,
+            }
+        }
+        (wait, _) => at(waited_ms, wait),
+    }
 }
 
 #[cfg(test)]

@@ -22,5 +22,6 @@ pub mod runner;
 pub mod search;
 pub mod settle;
 pub mod sim;
+pub mod startup;
 pub mod status;
 pub mod view;

@@ -135,11 +135,22 @@ pub fn unsat_reason(run: &Run, defs: &[MetricDef]) -> (ResourceConfig, String) {
         if let Some((n, robust, mean)) = best
             && !d.holds(robust)
         {
+            // A relaxed target is only worth naming when a config could meet
+            // it: a rate bound at or below zero says the windows varied too
+            // much to promise anything, not that a negative rate would do.
+            let relax = if robust > 0.0 {
+                format!(
+                    "; relax the target to {} {robust:.2}",
+                    if d.at_least { "at most" } else { "at least" }
+                )
+            } else {
+                String::new()
+            };
             parts.push(format!(
-                "constraint {} ({}) was not met: best value reached {robust:.2} in 99 % of 1 s windows (mean {mean:.2}, {n}); relax the target to {} {robust:.2}",
+                "constraint {} ({}) was not met: best value reached {:.2} in 99 % of 1 s windows (mean {mean:.2}, {n}){relax}",
                 d.name,
                 d.target_text(),
-                if d.at_least { "at most" } else { "at least" },
+                robust.max(0.0),
             ));
         }
     }

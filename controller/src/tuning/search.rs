@@ -73,10 +73,17 @@ pub(crate) fn baseline_done(
     // The config running now, as the knobs see it (unset knobs at their upper bound).
     let x = run.knobs.from_config(&run.current);
     let config = run.knobs.to_config(&x);
+    let pinned = run.knobs.pinned_names();
+    let together: Vec<String> = run
+        .knobs
+        .together
+        .iter()
+        .map(|g| format!("({})", g.join(" + ")))
+        .collect();
     out.push(normal(
         "Baseline",
         format!(
-            "baseline: satisfaction {:.1} %, {} knobs: {}",
+            "baseline: satisfaction {:.1} %, {} knobs: {}{}{}",
             eval.satisfaction * 100.0,
             run.knobs.knobs.len(),
             run.knobs
@@ -84,7 +91,20 @@ pub(crate) fn baseline_done(
                 .iter()
                 .map(|k| k.name.as_str())
                 .collect::<Vec<_>>()
-                .join(", ")
+                .join(", "),
+            if pinned.is_empty() {
+                String::new()
+            } else {
+                format!(
+                    "; held at their minimum, feeding no metric: {}",
+                    pinned.join(", ")
+                )
+            },
+            if together.is_empty() {
+                String::new()
+            } else {
+                format!("; acting together on one node: {}", together.join(", "))
+            }
         ),
     ));
     let rec = TrialRecord {
@@ -139,6 +159,7 @@ pub(crate) fn baseline_done(
                 beta: 2.0,
             }),
         candidates: 400,
+        stop_when_ei_below: Some(EI_NEGLIGIBLE),
         refine_steps: 15,
         ..Settings::default()
     };
@@ -154,6 +175,7 @@ pub(crate) fn baseline_done(
             ),
         ));
     }
+    let warm = !priors.is_empty();
     let opt = Optimizer::with_prior_observations(problem, settings, &rec.x, priors)
         .and_then(|mut o| o.tell(observation(&rec)).map(|_| o));
     match opt {
@@ -162,6 +184,26 @@ pub(crate) fn baseline_done(
             out.push(warning("OptimizerFailed", e.to_string()));
             return finish(run, env, defs, out);
         }
+    }
+    // Feasibility first: a baseline that misses a core target is followed by
+    // the most restrictive config. If even that misses, nothing can meet the
+    // target and the run ends Unsat after one trial; otherwise the search
+    // knows a feasible config from its second trial on. (A warm start
+    // re-measures the library's best config instead.)
+    if !rec.feasible()
+        && !warm
+        && let Some(corner) = run.knobs.restrictive_corner(&rec.x)
+    {
+        out.push(normal(
+            "FeasibilityFirst",
+            "the baseline misses a core target: measuring the most restrictive config first \
+             (every non-core knob at its minimum)"
+                .to_string(),
+        ));
+        run.corner_trial = Some(run.trials.len());
+        let config = run.knobs.to_config(&corner);
+        let x = run.knobs.from_config(&config);
+        return drain_first(run, env, State::TrialApply { x, config });
     }
     next_trial(run, env, defs, out)
 }
@@ -245,6 +287,30 @@ pub(crate) fn next_trial(
     defs: &[MetricDef],
     out: &mut Vec<Output>,
 ) -> State {
+    let last = run.trials.len().checked_sub(1);
+    if let Some(i) = last
+        && run.corner_trial == Some(i)
+        && !run.trials[i].feasible()
+    {
+        let (config, reason) = unsat_reason(run, defs);
+        let reason = format!(
+            "even the most restrictive config (trial {i}: every non-core knob at its minimum) misses a core target, so no config can meet it. {reason}"
+        );
+        out.push(warning("Unsat", reason.clone()));
+        run.reason = Some(reason);
+        return State::UnsatApply { config };
+    }
+    if let Some(i) = last
+        && all_capped(&run.trials[i])
+    {
+        out.push(normal(
+            "ObjectivesCapped",
+            format!(
+                "trial {i} meets every core target and every objective at its cap: nothing left to gain, verifying"
+            ),
+        ));
+        return finish(run, env, defs, out);
+    }
     if run.trials.len() < env.spec.tuning.max_trials as usize
         && let Some(o) = &mut run.optimizer
     {
@@ -287,6 +353,17 @@ pub(crate) fn drain_first(run: &Run, env: &Env<'_>, then: State) -> State {
         },
         None => then,
     }
+}
+
+/// The optimizer stops when no config's constrained expected improvement of
+/// the scalarised objective (0 to 1 at the caps) reaches this: half a percent
+/// of the cap is below what one trial's window can tell apart.
+pub const EI_NEGLIGIBLE: f64 = 0.005;
+
+/// Whether a trial is feasible with every objective at its cap (or the spec
+/// has no objectives): no other config can do better.
+pub fn all_capped(t: &TrialRecord) -> bool {
+    t.feasible() && t.eval.objective.is_none_or(|o| o >= 1.0 - 1e-9)
 }
 
 /// Trials whose objective is within this of the best count as equally good:

@@ -5,6 +5,7 @@
 
 mod remediation;
 mod search;
+mod startup;
 
 use configbot_agent::measure::{MeasureReport, Probe, ProbeSeries};
 use configbot_dataplane::{Graph, NodeInfo, TopicInfo};
@@ -47,15 +48,20 @@ fn graph() -> Graph {
             },
         );
     }
-    g.topics.insert(
-        "/image".into(),
-        TopicInfo {
-            name: "/image".into(),
-            msg_type: "m/M".into(),
-            publishers: ["/camera".to_string()].into(),
-            subscribers: ["/detector".to_string()].into(),
-        },
-    );
+    let mut topic = |name: &str, publisher: &str, subscribers: &[&str]| {
+        g.topics.insert(
+            name.into(),
+            TopicInfo {
+                name: name.into(),
+                msg_type: "m/M".into(),
+                publishers: [publisher.to_string()].into(),
+                subscribers: subscribers.iter().map(|s| s.to_string()).collect(),
+            },
+        );
+    };
+    topic("/image", "/camera", &["/detector"]);
+    topic("/detections", "/detector", &[]);
+    topic("/cmd_vel", "/planner", &[]);
     g
 }
 
@@ -126,6 +132,7 @@ fn with(state: State) -> Run {
 
 fn name(s: &State) -> &'static str {
     match s {
+        State::StartUp { .. } => "StartUp",
         State::Observe { .. } => "Observe",
         State::Baseline { .. } => "Baseline",
         State::Drain { .. } => "Drain",
@@ -251,10 +258,10 @@ fn transition_table() {
             false,
             true,
             "TrialApply",
-            vec!["Baseline"],
+            vec!["Baseline", "FeasibilityFirst"],
         ),
         (
-            "warm start from the library's trials",
+            "a library profile without trials: no warm start, the corner first",
             State::Baseline {
                 graph: graph(),
                 prior: Some(profile()),
@@ -263,7 +270,7 @@ fn transition_table() {
             false,
             true,
             "TrialApply",
-            vec!["Baseline"],
+            vec!["Baseline", "FeasibilityFirst"],
         ),
         (
             "tuning not allowed + violated: remediate",
@@ -462,7 +469,7 @@ fn transition_table() {
             }),
             false,
             true,
-            "Observe",
+            "StartUp",
             vec!["ContextChanged"],
         ),
         (
@@ -475,7 +482,7 @@ fn transition_table() {
             }),
             false,
             true,
-            "Observe",
+            "StartUp",
             vec!["ContextChanged"],
         ),
         (
@@ -491,7 +498,7 @@ fn transition_table() {
             }),
             false,
             true,
-            "Observe",
+            "StartUp",
             vec!["ContextChanged"],
         ),
         (

@@ -14,7 +14,7 @@ fn early_stop_is_a_censored_observation() {
             graph: graph(),
             prior: None,
         }),
-        report(&BAD, 5.0),
+        report(&OK, 5.0),
         &env,
     );
     assert_eq!(run.knobs.knobs.len(), 3, "{:?}", run.knobs);
@@ -86,6 +86,7 @@ fn with_two_trials(env: &Env<'_>) -> Run {
     run.knobs = KnobSpace {
         knobs: vec![knob("/detector", true), knob("/planner", false)],
         period_micros: 20_000,
+        ..KnobSpace::default()
     };
     for (x, det) in [([1.0, 1.5], 8.0), ([1.9, 1.5], 9.0)] {
         push_trial(&mut run, env, &x, det);
@@ -382,6 +383,7 @@ fn safe_exploration_is_off_when_no_config_can_be_worse_than_the_baseline() {
     let space = |ks: Vec<knobs::KnobDef>| KnobSpace {
         knobs: ks,
         period_micros: 20_000,
+        ..KnobSpace::default()
     };
     let non_core = space(vec![knob("/detector", true), knob("/web", true)]);
     assert!(every_config_as_safe_as(&non_core, &[2.0, 2.0]));
@@ -477,4 +479,103 @@ fn a_tipped_config_with_nothing_else_to_try_relearns_at_once() {
         assert_eq!(name(&run.state), "Observe", "{applied:?}");
         assert!(run.tipped.is_none());
     }
+}
+
+/// The baseline of `cmd` values `base` measured; the run then applies its
+/// first trial (the restrictive corner), and that trial measures `first`.
+fn baseline_then_first_trial(env: &Env<'_>, base: &[f64], first: Input) -> (Run, Vec<Output>) {
+    let (run, out) = step(
+        with(State::Baseline {
+            graph: graph(),
+            prior: None,
+        }),
+        report(base, 5.0),
+        env,
+    );
+    assert_eq!(reasons(&out), vec!["Baseline", "FeasibilityFirst"]);
+    let State::TrialApply { x, config } = &run.state else {
+        panic!("{:?}", run.state)
+    };
+    // The corner: every non-core knob at its minimum.
+    let lows: Vec<f64> = run.knobs.knobs.iter().map(|k| k.min).collect();
+    assert_eq!(x, &lows);
+    assert_eq!(config.cpu["/detector"], 0.05);
+    let (run, _) = step(run, Input::Applied, env);
+    step(run, first, env)
+}
+
+#[test]
+fn a_stack_whose_restrictive_corner_fails_ends_unsat_after_that_one_trial() {
+    let (st, sp) = (stack(), spec(0.0, 20));
+    let env = env(&st, &sp);
+    let (run, out) = baseline_then_first_trial(&env, &BAD, report(&[30.0; 5], 0.0));
+    assert_eq!(run.trials.len(), 1);
+    assert_eq!(reasons(&out), vec!["Trial", "Unsat"]);
+    assert_eq!(name(&run.state), "UnsatApply");
+    let reason = run.reason.clone().unwrap();
+    assert!(
+        reason.contains("most restrictive config (trial 0") && reason.contains("cmd"),
+        "{reason}"
+    );
+    assert!(!reason.contains("at most -"), "{reason}");
+}
+
+#[test]
+fn a_feasible_restrictive_corner_goes_on_searching_from_it() {
+    let (st, sp) = (stack(), spec(0.0, 20));
+    let env = env(&st, &sp);
+    let (run, out) = baseline_then_first_trial(&env, &BAD, report(&OK, 2.0));
+    assert_eq!(reasons(&out), vec!["Trial"]);
+    assert!(run.trials[0].feasible());
+    assert_eq!(name(&run.state), "TrialApply", "the search goes on");
+    assert_eq!(run.optimizer.as_ref().unwrap().observations().len(), 2);
+}
+
+#[test]
+fn a_run_whose_objectives_are_all_capped_stops_early_and_verifies() {
+    let (st, sp) = (stack(), spec(0.0, 20));
+    let env = env(&st, &sp);
+    // The corner already meets cmd and gives the detector its 10 Hz cap.
+    let (run, out) = baseline_then_first_trial(&env, &BAD, report(&OK, 10.0));
+    assert_eq!(reasons(&out), vec!["Trial", "ObjectivesCapped"]);
+    assert_eq!(run.trials.len(), 1, "one trial of 20");
+    assert_eq!(
+        run.state,
+        State::VerifyApply {
+            candidate: Candidate::Trial { index: 0 },
+            config: run.trials[0].config.clone()
+        }
+    );
+}
+
+#[test]
+fn a_trial_near_the_boundary_is_measured_longer_not_discarded() {
+    let (st, sp) = (stack(), spec(0.0, 20));
+    let env = env(&st, &sp);
+    // Five windows on target but spread: the normal bound misses 35.
+    let spread = [36.0, 44.0, 35.0, 43.0, 36.0];
+    let (run, out) = baseline_then_first_trial(&env, &BAD, report(&spread, 2.0));
+    assert_eq!(reasons(&out), vec!["NearBoundary"]);
+    assert!(run.trials.is_empty());
+    let State::TrialProfile {
+        partial: Some(p), ..
+    } = &run.state
+    else {
+        panic!("{:?}", run.state)
+    };
+    assert_eq!(p.duration_ms, 5000);
+    assert_eq!(
+        effect(&run, &env),
+        Effect::Measure(measure::request(&env.defs(), &[], 5000, 1000)),
+        "on to ten windows"
+    );
+    // Five more windows, all on target: ten windows count; feasible.
+    let (run, out) = step(run, report(&spread, 2.0), &env);
+    assert_eq!(reasons(&out), vec!["Trial"]);
+    assert!(run.trials[0].feasible(), "{:?}", run.trials[0].eval);
+    // A trial that misses in most windows is not near: recorded at once.
+    let mostly_low = [30.0, 36.0, 30.0, 30.0, 30.0];
+    let (run, out) = baseline_then_first_trial(&env, &BAD, report(&mostly_low, 2.0));
+    assert_eq!(reasons(&out), vec!["Trial", "Unsat"], "the corner missed");
+    assert!(!run.trials[0].feasible());
 }
