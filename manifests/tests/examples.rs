@@ -15,7 +15,10 @@ fn examples_dir() -> PathBuf {
 #[test]
 fn example_stacks_load() {
     let mut kinds = Vec::new();
-    for entry in fs::read_dir(examples_dir()).unwrap() {
+    let files = fs::read_dir(examples_dir())
+        .unwrap()
+        .chain(fs::read_dir(examples_dir().join("real")).unwrap());
+    for entry in files {
         let path = entry.unwrap().path();
         if path.extension().is_some_and(|e| e == "yaml") {
             let text = fs::read_to_string(&path).unwrap();
@@ -26,8 +29,8 @@ fn example_stacks_load() {
     }
     assert_eq!(
         kinds.len(),
-        7,
-        "three stacks, each with its spec, and a config profile"
+        13,
+        "three simulated and three real stacks, each with its spec, and a config profile"
     );
 }
 

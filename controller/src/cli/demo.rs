@@ -25,7 +25,7 @@ use crate::tuning::measure::{self, MetricDef};
 use crate::tuning::robot::Robot;
 
 /// The example stacks, embedded so the demo runs from any directory.
-pub const EXAMPLES: [(&str, &str); 3] = [
+pub const EXAMPLES: [(&str, &str); 6] = [
     (
         "basic-nav.yaml",
         include_str!("../../../manifests/examples/basic-nav.yaml"),
@@ -37,6 +37,18 @@ pub const EXAMPLES: [(&str, &str); 3] = [
     (
         "terrain-nav.yaml",
         include_str!("../../../manifests/examples/terrain-nav.yaml"),
+    ),
+    (
+        "real-perception.yaml",
+        include_str!("../../../manifests/examples/real/perception.yaml"),
+    ),
+    (
+        "real-backlog.yaml",
+        include_str!("../../../manifests/examples/real/backlog.yaml"),
+    ),
+    (
+        "real-two-paths.yaml",
+        include_str!("../../../manifests/examples/real/two-paths.yaml"),
     ),
 ];
 
@@ -72,7 +84,7 @@ pub struct DemoArgs {
 pub fn example(name: &str) -> anyhow::Result<(RobotStack, PerformanceSpec)> {
     let file = format!("{name}.yaml");
     let (_, text) = EXAMPLES.iter().find(|(f, _)| *f == file).ok_or_else(|| {
-        anyhow::anyhow!("no example stack {name:?} (basic-nav, intermed-nav, terrain-nav)")
+        anyhow::anyhow!("no example stack {name:?} (basic-nav, intermed-nav, terrain-nav, real-perception, real-backlog, real-two-paths)")
     })?;
     let exe = std::env::current_exe()?;
     let text = text.replace(
@@ -549,7 +561,13 @@ mod tests {
             assert_eq!(stack.metadata.name, spec.spec.stack_ref.name);
             let exe = std::env::current_exe().unwrap();
             for (_, n) in stack.spec.nodes() {
-                assert_eq!(n.run.as_ref().unwrap().command, exe.display().to_string());
+                let command = &n.run.as_ref().unwrap().command;
+                if file.starts_with("real-") {
+                    // Real stacks run Debian's programs, by absolute path.
+                    assert!(command.starts_with("/usr/"), "{file}: {command}");
+                } else {
+                    assert_eq!(*command, exe.display().to_string());
+                }
             }
         }
         assert!(example("nope").is_err());

@@ -9,9 +9,12 @@
 //! Fig. 7 ([`timeline`]: Basic-NAV → Terrain-NAV → Basic-NAV on one robot).
 //! Tuning cost is counted in trials and in seconds from applying the spec,
 //! read from the spec's status as the run publishes it ([`follow`]).
+//! `--stacks real` measures the real Debian ROS 1 stacks instead ([`real`]:
+//! launch and per-node defaults, cgroup-only, ConfigBot per seed, the oracle).
 
 mod cross;
 mod owner;
+pub mod real;
 mod timeline;
 
 use std::path::{Path, PathBuf};
@@ -33,13 +36,31 @@ use crate::tuning::robot::Robot;
 
 #[derive(Debug, Args)]
 pub struct BenchArgs {
-    /// Stacks to run (comma-separated).
+    /// Stacks to run (comma-separated). `real` means the real Debian ROS 1
+    /// stacks (real-perception, real-backlog, real-two-paths), each of which
+    /// can also be named alone.
     #[arg(
         long,
         value_delimiter = ',',
         default_value = "basic-nav,intermed-nav,terrain-nav"
     )]
     stacks: Vec<String>,
+    /// Real stacks: seconds each row is measured for after tuning (at least 60
+    /// for the README's numbers).
+    #[arg(long, default_value_t = 60)]
+    real_window_secs: u64,
+    /// Real stacks: one ConfigBot run per seed; the `configbot` row is the
+    /// run with the median objective.
+    #[arg(long, value_delimiter = ',', default_value = "1,2,3")]
+    seeds: Vec<u64>,
+    /// Real stacks: configs the oracle measures (0: no oracle). It measures
+    /// the corners of the knob space and a Sobol design, each from a drained
+    /// state, then verifies the best over a full window.
+    #[arg(long, default_value_t = 50)]
+    oracle_configs: usize,
+    /// Real stacks: seconds the oracle measures each config for.
+    #[arg(long, default_value_t = 6)]
+    oracle_window_secs: u64,
     /// Seconds each config is measured for.
     #[arg(long, default_value_t = 30)]
     window_secs: u64,
@@ -65,7 +86,9 @@ pub struct BenchArgs {
     /// For CI: Basic-NAV only, 5 s windows, one random config, at most 6
     /// trials of at most 3 s (settling at most 1 s); Basic-NAV's config cross-evaluated on
     /// Terrain-NAV only; a short timeline (switch at 15 s, at most 4 trials
-    /// per run). Checks the shape of the output, not the numbers.
+    /// per run). With real stacks in `--stacks`: those only, 5 s windows,
+    /// one seed, at most 4 trials, an oracle of 3 configs. Checks the shape
+    /// of the output, not the numbers.
     #[arg(long)]
     quick: bool,
     /// Give up a tuning run after this many seconds.
@@ -201,6 +224,19 @@ struct Plan {
 }
 
 fn plan(a: &BenchArgs) -> Plan {
+    let stacks = real::expand(&a.stacks);
+    if a.quick && stacks.iter().any(|s| real::is_real(s)) {
+        return Plan {
+            stacks: stacks.into_iter().filter(|s| real::is_real(s)).collect(),
+            cross_on: Vec::new(),
+            window: 5,
+            random: 0,
+            switch_at: 0,
+            hold: 0,
+            max_trials: Some(4),
+            timeline_trials: None,
+        };
+    }
     if a.quick {
         Plan {
             stacks: vec!["basic-nav".into()],
@@ -213,9 +249,14 @@ fn plan(a: &BenchArgs) -> Plan {
             timeline_trials: Some(4),
         }
     } else {
+        let sim: Vec<String> = stacks
+            .iter()
+            .filter(|s| !real::is_real(s))
+            .cloned()
+            .collect();
         Plan {
-            stacks: a.stacks.clone(),
-            cross_on: a.cross_on.clone().unwrap_or_else(|| a.stacks.clone()),
+            cross_on: a.cross_on.clone().unwrap_or_else(|| sim.clone()),
+            stacks,
             window: a.window_secs,
             random: a.random,
             switch_at: a.switch_at_secs,
@@ -274,12 +315,54 @@ pub async fn run(a: &BenchArgs) -> anyhow::Result<ExitCode> {
     }
 }
 
+/// The settings of the real-stack rows.
+fn real_plan(a: &BenchArgs, p: &Plan) -> real::RealPlan {
+    if a.quick {
+        real::RealPlan {
+            window: p.window,
+            seeds: a.seeds.iter().take(1).copied().collect(),
+            oracle_configs: a.oracle_configs.min(3),
+            oracle_window: 3,
+            max_trials: p.max_trials,
+        }
+    } else {
+        real::RealPlan {
+            window: a.real_window_secs,
+            seeds: a.seeds.clone(),
+            oracle_configs: a.oracle_configs,
+            oracle_window: a.oracle_window_secs,
+            max_trials: None,
+        }
+    }
+}
+
 /// The whole bench; every step runs on a robot borrowed from `cur`.
 async fn bench(a: &BenchArgs, cur: &mut Current) -> anyhow::Result<ExitCode> {
     let p = plan(a);
     std::fs::create_dir_all(&a.out)?;
     let mut results = Vec::new();
-    for name in &p.stacks {
+    let mut oracles = Vec::new();
+    let rp = real_plan(a, &p);
+    for name in p.stacks.iter().filter(|s| real::is_real(s)) {
+        let (rows, oracle) = real::run_stack(cur, a, &rp, name).await?;
+        let (stack, spec) = super::demo::example(name)?;
+        let defs = measure::metric_defs(&stack.spec, &spec.spec);
+        results.extend(rows);
+        write_plots(&a.out, name, &defs, &results)?;
+        if let Some(o) = oracle {
+            real::write_oracle(&a.out, &o)?;
+            oracles.push(o);
+        }
+    }
+    if !oracles.is_empty() || p.stacks.iter().any(|s| real::is_real(s)) {
+        let defs_of = |name: &str| {
+            super::demo::example(name)
+                .map(|(st, sp)| measure::metric_defs(&st.spec, &sp.spec))
+                .unwrap_or_default()
+        };
+        println!("\n{}", real::summary(&defs_of, &results));
+    }
+    for name in p.stacks.iter().filter(|s| !real::is_real(s)) {
         let (stack, spec) = example_for(name, &p)?;
         let defs = measure::metric_defs(&stack.spec, &spec.spec);
         println!(
@@ -296,16 +379,27 @@ async fn bench(a: &BenchArgs, cur: &mut Current) -> anyhow::Result<ExitCode> {
         write_plots(&a.out, name, &defs, &results)?;
     }
     println!("\n{}", table(&results));
-    let cross = cross::run(cur, a, &p, &results).await?;
-    println!("\n{}", cross::matrix_table(&cross));
-    let timeline = timeline::run(cur, a, &p).await?;
-    println!("\n{}", timeline::summary(&timeline));
+    let simulated = p.stacks.iter().any(|s| !real::is_real(s));
+    let cross = if simulated {
+        let c = cross::run(cur, a, &p, &results).await?;
+        println!("\n{}", cross::matrix_table(&c));
+        c
+    } else {
+        Default::default()
+    };
+    let timeline = if simulated {
+        let t = timeline::run(cur, a, &p).await?;
+        println!("\n{}", timeline::summary(&t));
+        Some(t)
+    } else {
+        None
+    };
     let path = a.out.join("bench.json");
     std::fs::write(
         &path,
         serde_json::to_string_pretty(&serde_json::json!({
             "quick": a.quick, "windowSeconds": p.window, "seed": a.seed, "results": results,
-            "crossEvaluation": cross, "timeline": timeline,
+            "crossEvaluation": cross, "timeline": timeline, "oracles": oracles,
         }))?,
     )?;
     println!("results: {}", path.display());

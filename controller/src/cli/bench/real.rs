@@ -1,0 +1,533 @@
+//! `configbot bench --stacks real`: the real Debian ROS 1 stacks of
+//! `manifests/examples/real/`, robot software nobody here wrote. For each
+//! stack, every row is an independent measurement of `--window-secs`
+//! (60 s by default for real stacks) on a fresh robot:
+//!
+//! - `launch-default`: every node started by the bench as one launch
+//!   session, as roslaunch runs them: no cgroup of their own, no limits;
+//! - `default`: the agent's per-node default (each node its own cgroup,
+//!   equal weights, no limits);
+//! - `cgroup-only` and `configbot`: a tuning run (adaptors off / on), then
+//!   the config it keeps measured again; ConfigBot runs once per seed
+//!   (`--seeds`), each row `configbot-seed-N`, and `configbot` is the run
+//!   with the median objective;
+//! - `oracle`: `--oracle-configs` space-filling configs of the same knob
+//!   space ([`oracle`]), each from a drained state, and the best one that
+//!   holds ≥ 99.5 % over a full window.
+
+use std::path::Path;
+use std::process::Stdio;
+use std::time::Duration;
+
+use configbot_manifests::{PerformanceSpec, ResourceConfig, RobotStack};
+use serde::Serialize;
+use serde_json::Value;
+
+use super::owner::Current;
+use super::{BenchArgs, FLOW_TIMEOUT, MethodResult, result, start, tuned, wait_until_up};
+use crate::cli::demo::{example, measure_defs};
+use crate::tuning::knobs::{self, KnobSpace};
+use crate::tuning::measure::{self, MetricDef};
+use crate::tuning::robot::Robot;
+use crate::tuning::settle;
+
+/// The real stacks, by the name `--stacks` takes (`real` means all of them).
+pub const STACKS: [&str; 3] = ["real-perception", "real-backlog", "real-two-paths"];
+
+/// Satisfaction the oracle's best config must hold over a full window.
+pub const ORACLE_HOLDS: f64 = 0.995;
+
+/// Whether `name` is a real stack.
+pub fn is_real(name: &str) -> bool {
+    STACKS.contains(&name)
+}
+
+/// `--stacks` with `real` expanded to every real stack.
+pub fn expand(stacks: &[String]) -> Vec<String> {
+    let mut out = Vec::new();
+    for s in stacks {
+        if s == "real" {
+            out.extend(STACKS.iter().map(|s| s.to_string()));
+        } else {
+            out.push(s.clone());
+        }
+    }
+    out
+}
+
+/// The settings of the real-stack rows (`--quick` shortens them).
+#[derive(Debug, Clone)]
+pub struct RealPlan {
+    pub window: u64,
+    pub seeds: Vec<u64>,
+    pub oracle_configs: usize,
+    pub oracle_window: u64,
+    pub max_trials: Option<u32>,
+}
+
+/// Every row of one real stack, in order.
+pub async fn run_stack(
+    cur: &mut Current,
+    a: &BenchArgs,
+    p: &RealPlan,
+    name: &str,
+) -> anyhow::Result<(Vec<MethodResult>, Option<Oracle>)> {
+    let (stack, mut spec) = example(name)?;
+    if let Some(m) = p.max_trials {
+        spec.spec.tuning.max_trials = spec.spec.tuning.max_trials.min(m);
+    }
+    let defs = measure::metric_defs(&stack.spec, &spec.spec);
+    let mut rows = Vec::new();
+    println!("==> {name}: launch default ({} s)", p.window);
+    rows.push(launch_default(cur, a, name, &stack, &defs, p.window).await?);
+    println!("==> {name}: per-node default ({} s)", p.window);
+    rows.push(per_node_default(cur, a, name, &stack, &defs, p.window).await?);
+    println!("==> {name}: cgroup-only");
+    let mut cg = spec.clone();
+    cg.spec.knobs.adaptors.enabled = false;
+    rows.push(tuned(cur, a, name, "cgroup-only", &stack, &cg, p.window).await?);
+    let mut runs = Vec::new();
+    for &seed in &p.seeds {
+        println!("==> {name}: configbot, seed {seed}");
+        let mut s = spec.clone();
+        s.spec.tuning.seed = seed;
+        let method = format!("configbot-seed-{seed}");
+        runs.push(tuned(cur, a, name, &method, &stack, &s, p.window).await?);
+    }
+    if let Some(mut median) = median_run(&defs, &runs) {
+        median.method = "configbot".into();
+        rows.extend(runs);
+        rows.push(median);
+    }
+    let oracle = if p.oracle_configs > 0 {
+        println!(
+            "==> {name}: oracle, {} configs of {} s",
+            p.oracle_configs, p.oracle_window
+        );
+        Some(oracle(cur, a, p, name, &stack, &spec, &defs).await?)
+    } else {
+        None
+    };
+    if let Some(best) = oracle.as_ref().and_then(|o| o.best.clone()) {
+        rows.push(best);
+    }
+    Ok((rows, oracle))
+}
+
+/// The run whose scalarised objective is the median of `runs` (pure); for
+/// an even count the lower of the two middle ones.
+pub fn median_run(defs: &[MetricDef], runs: &[MethodResult]) -> Option<MethodResult> {
+    let mut sorted: Vec<&MethodResult> = runs.iter().collect();
+    sorted.sort_by(|a, b| objective(defs, a).total_cmp(&objective(defs, b)));
+    sorted
+        .get(sorted.len().saturating_sub(1) / 2)
+        .map(|r| (*r).clone())
+}
+
+/// The scalarised objective (max-min of capped, normalised objectives) of a
+/// measured row; 1 without objectives.
+pub fn objective(defs: &[MetricDef], r: &MethodResult) -> f64 {
+    measure::scalarize(defs, &r.metrics, Default::default()).unwrap_or(1.0)
+}
+
+/// The stack's nodes as one launch session: started by this process with
+/// the robot's ROS master, in this process's own cgroup, no limits.
+async fn launch_default(
+    cur: &mut Current,
+    a: &BenchArgs,
+    name: &str,
+    stack: &RobotStack,
+    defs: &[MetricDef],
+    window: u64,
+) -> anyhow::Result<MethodResult> {
+    let dir = super::fresh_dir(&a.out, name, "launch-default")?;
+    let robot = cur.start(&dir).await?;
+    let logs = dir.join("launch");
+    std::fs::create_dir_all(&logs)?;
+    let mut children = Vec::new();
+    for (_, node) in stack.spec.nodes() {
+        let Some(run) = &node.run else { continue };
+        let log = std::fs::File::create(logs.join(format!(
+            "{}.log",
+            node.name.trim_start_matches('/').replace('/', "_")
+        )))?;
+        let mut cmd = tokio::process::Command::new(&run.command);
+        cmd.args(&run.args)
+            .envs(&run.env)
+            .env("ROS_MASTER_URI", &robot.master_uri)
+            .stdin(Stdio::null())
+            .stdout(log.try_clone()?)
+            .stderr(log)
+            .kill_on_drop(true);
+        children.push(cmd.spawn().map_err(|e| {
+            anyhow::anyhow!("{name}: starting {} ({}): {e}", node.name, run.command)
+        })?);
+    }
+    let out = async {
+        let silent = wait_until_up(robot.robot.as_ref(), defs, FLOW_TIMEOUT).await;
+        if !silent.is_empty() {
+            println!(
+                "    {name}: no messages on {} under the launch default",
+                silent.join(", ")
+            );
+        }
+        let r = measure_defs(robot.robot.as_ref(), defs, window).await?;
+        anyhow::Ok(result(name, "launch-default", defs, &r, Value::Null, None))
+    }
+    .await;
+    for mut c in children {
+        let _ = c.kill().await;
+    }
+    cur.close().await?;
+    out
+}
+
+/// The agent's per-node default: every node in its own cgroup, no limits.
+async fn per_node_default(
+    cur: &mut Current,
+    a: &BenchArgs,
+    name: &str,
+    stack: &RobotStack,
+    defs: &[MetricDef],
+    window: u64,
+) -> anyhow::Result<MethodResult> {
+    let robot = start(cur, &a.out, name, "default", stack, defs).await?;
+    let out = async {
+        let r = measure_defs(robot.robot.as_ref(), defs, window).await?;
+        anyhow::Ok(result(name, "default", defs, &r, Value::Null, None))
+    }
+    .await;
+    cur.close().await?;
+    out
+}
+
+/// One config the oracle measured.
+#[derive(Debug, Clone, Serialize)]
+#[serde(rename_all = "camelCase")]
+pub struct OracleConfig {
+    pub x: Vec<f64>,
+    pub config: ResourceConfig,
+    pub satisfaction: f64,
+    pub objective: f64,
+    pub metrics: std::collections::BTreeMap<String, f64>,
+}
+
+/// What the oracle measured on one stack.
+#[derive(Debug, Clone, Serialize)]
+#[serde(rename_all = "camelCase")]
+pub struct Oracle {
+    pub stack: String,
+    pub knobs: Vec<String>,
+    pub pinned: Vec<String>,
+    pub window_seconds: u64,
+    pub configs: Vec<OracleConfig>,
+    /// Candidates verified over a full window, in order, with their satisfaction.
+    pub verified: Vec<(usize, f64)>,
+    /// The best config that held ≥ 99.5 % over a full window.
+    pub best: Option<MethodResult>,
+}
+
+/// The points the oracle measures (pure): the two corners of the knob
+/// space (everything at its minimum, everything at its maximum), then a
+/// scrambled Sobol design, `n` in all; pinned knobs stay pinned.
+pub fn oracle_points(space: &KnobSpace, n: usize, seed: u64) -> Vec<Vec<f64>> {
+    let dim = space.knobs.len();
+    let lo: Vec<f64> = space.knobs.iter().map(|k| k.min).collect();
+    let hi: Vec<f64> = space.knobs.iter().map(|k| k.max).collect();
+    let mut out = vec![lo, hi];
+    out.truncate(n);
+    if dim == 0 || out.len() >= n {
+        return out;
+    }
+    let opt_space = space.optimizer_space().ok();
+    let mut rng = configbot_optimizer::rng::Rng::seed_from_u64(seed);
+    let mut sobol = configbot_optimizer::design::Sobol::scrambled(dim, &mut rng);
+    for u in sobol.points(1, n - out.len()) {
+        let x = match &opt_space {
+            Some(s) => s.from_unit(&u),
+            None => u,
+        };
+        out.push(x);
+    }
+    out
+}
+
+/// Measures the oracle's configs, then verifies the best ones over a full
+/// window until one holds ≥ [`ORACLE_HOLDS`].
+async fn oracle(
+    cur: &mut Current,
+    a: &BenchArgs,
+    p: &RealPlan,
+    name: &str,
+    stack: &RobotStack,
+    spec: &PerformanceSpec,
+    defs: &[MetricDef],
+) -> anyhow::Result<Oracle> {
+    let robot = start(cur, &a.out, name, "oracle", stack, defs).await?;
+    let out = async {
+        let r = robot.robot.as_ref();
+        let graph = r.graph().await?;
+        let topics: Vec<String> = graph.topics.keys().cloned().collect();
+        let rates = measure::topic_rates(
+            &r.measure(&measure::request(&[], &topics, 3000, 1000))
+                .await?,
+        );
+        let space = knobs::derive(
+            &stack.spec,
+            &spec.spec,
+            &graph,
+            &rates,
+            stack.spec.robot.cpus.unwrap_or(2.0),
+        )?;
+        let points = oracle_points(&space, p.oracle_configs, a.seed);
+        let mut configs = Vec::new();
+        for (i, x) in points.iter().enumerate() {
+            let config = space.to_config(x);
+            let rep = measure_from_drained(r, &space, defs, &config, p.oracle_window).await?;
+            let e = measure::evaluate(defs, &rep, Default::default());
+            println!(
+                "    config {:>2}/{}: satisfaction {:5.1} %, objective {:.3}",
+                i + 1,
+                points.len(),
+                e.satisfaction * 100.0,
+                e.objective.unwrap_or(1.0)
+            );
+            configs.push(OracleConfig {
+                x: x.clone(),
+                config,
+                satisfaction: e.satisfaction,
+                objective: e.objective.unwrap_or(1.0),
+                metrics: e.means,
+            });
+        }
+        let mut verified = Vec::new();
+        let mut best = None;
+        for i in oracle_candidates(&configs) {
+            let c = &configs[i];
+            let rep = measure_from_drained(r, &space, defs, &c.config, p.window).await?;
+            let row = result(
+                name,
+                "oracle",
+                defs,
+                &rep,
+                serde_json::to_value(&c.config)?,
+                None,
+            );
+            verified.push((i, row.satisfaction));
+            if row.satisfaction >= ORACLE_HOLDS {
+                best = Some(row);
+                break;
+            }
+        }
+        anyhow::Ok(Oracle {
+            stack: name.into(),
+            knobs: space.knobs.iter().map(|k| k.name.clone()).collect(),
+            pinned: space.pinned_names().iter().map(|s| s.to_string()).collect(),
+            window_seconds: p.oracle_window,
+            configs,
+            verified,
+            best,
+        })
+    }
+    .await;
+    cur.close().await?;
+    out
+}
+
+/// The oracle's candidates to verify, best first (pure): configs whose every
+/// window held, by objective (ties: the first measured); at most five.
+pub fn oracle_candidates(configs: &[OracleConfig]) -> Vec<usize> {
+    let mut held: Vec<usize> = (0..configs.len())
+        .filter(|&i| configs[i].satisfaction >= 1.0)
+        .collect();
+    held.sort_by(|&a, &b| {
+        configs[b]
+            .objective
+            .total_cmp(&configs[a].objective)
+            .then(a.cmp(&b))
+    });
+    held.truncate(5);
+    held
+}
+
+/// Drains the non-core apps as a tuning run does (their input at its
+/// minimum, their CPU at its maximum, until the core metrics are on target
+/// and still, at most [`settle::DRAIN_MAX_SECONDS`]), applies `config`,
+/// lets it settle 3 s and measures it for `secs`.
+async fn measure_from_drained(
+    r: &dyn Robot,
+    space: &KnobSpace,
+    defs: &[MetricDef],
+    config: &ResourceConfig,
+    secs: u64,
+) -> anyhow::Result<configbot_agent::measure::MeasureReport> {
+    if let Some(d) = space.drain_point(&space.from_config(config)) {
+        r.apply(&space.to_config(&d)).await?;
+        let mut so_far = measure_defs(r, defs, 2).await?;
+        while !settle::drained(defs, &so_far) {
+            let more = measure_defs(r, defs, 1).await?;
+            so_far = measure::concat(&so_far, &more);
+        }
+    }
+    r.apply(config).await?;
+    tokio::time::sleep(Duration::from_secs(3)).await;
+    measure_defs(r, defs, secs).await
+}
+
+/// Writes `oracle-<stack>.json`.
+pub fn write_oracle(out: &Path, o: &Oracle) -> anyhow::Result<()> {
+    std::fs::write(
+        out.join(format!("oracle-{}.json", o.stack)),
+        serde_json::to_string_pretty(o)?,
+    )?;
+    Ok(())
+}
+
+/// The per-stack summary against the oracle (pure): each row's
+/// satisfaction and scalarised objective, and its objective as a share of
+/// the oracle best's.
+pub fn summary(defs_of: &dyn Fn(&str) -> Vec<MetricDef>, rows: &[MethodResult]) -> String {
+    let mut out = Vec::new();
+    for r in rows {
+        let defs = defs_of(&r.stack);
+        let o = objective(&defs, r);
+        let oracle = rows
+            .iter()
+            .find(|b| b.stack == r.stack && b.method == "oracle")
+            .map(|b| objective(&defs, b));
+        out.push(vec![
+            r.stack.clone(),
+            r.method.clone(),
+            format!("{:.1}%", r.satisfaction * 100.0),
+            format!("{o:.3}"),
+            oracle.map_or("-".into(), |b| {
+                if b > 0.0 {
+                    format!("{:.2}", o / b)
+                } else {
+                    "-".into()
+                }
+            }),
+        ]);
+    }
+    let h = ["STACK", "METHOD", "SATISFACTION", "OBJECTIVE", "X ORACLE"].map(String::from);
+    crate::table::render(&h, &out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn row(stack: &str, method: &str, sat: f64, det: f64) -> MethodResult {
+        MethodResult {
+            stack: stack.into(),
+            method: method.into(),
+            satisfaction: sat,
+            metrics: [("cmd".to_string(), 30.0), ("det".to_string(), det)]
+                .into_iter()
+                .collect(),
+            config: Value::Null,
+            tuning: None,
+            core_series: Vec::new(),
+        }
+    }
+
+    fn defs() -> Vec<MetricDef> {
+        vec![
+            MetricDef::rate_at_least("cmd", "nav", "/cmd", 25.0, true),
+            MetricDef::rate_at_least("det", "det", "/det", 4.0, false),
+        ]
+    }
+
+    #[test]
+    fn real_expands_to_every_real_stack() {
+        let s = expand(&["basic-nav".into(), "real".into()]);
+        assert_eq!(s[0], "basic-nav");
+        assert_eq!(&s[1..], STACKS.map(String::from));
+        assert!(is_real("real-backlog") && !is_real("basic-nav"));
+    }
+
+    #[test]
+    fn the_median_run_is_the_middle_objective() {
+        let runs = [
+            row("s", "configbot-seed-1", 1.0, 3.0),
+            row("s", "configbot-seed-2", 1.0, 1.0),
+            row("s", "configbot-seed-3", 1.0, 2.0),
+        ];
+        assert_eq!(
+            median_run(&defs(), &runs).unwrap().method,
+            "configbot-seed-3"
+        );
+        assert_eq!(
+            median_run(&defs(), &runs[..2]).unwrap().method,
+            "configbot-seed-2"
+        );
+        assert!(median_run(&defs(), &[]).is_none());
+    }
+
+    #[test]
+    fn the_summary_compares_each_row_with_the_oracle() {
+        let rows = [
+            row("s", "configbot", 1.0, 3.0),
+            row("s", "oracle", 1.0, 4.0),
+        ];
+        let t = summary(&|_| defs(), &rows);
+        let lines: Vec<&str> = t.lines().collect();
+        assert!(
+            lines[1].contains("0.750") && lines[1].contains("0.75"),
+            "{t}"
+        );
+        assert!(lines[2].contains("1.00"), "{t}");
+    }
+
+    #[test]
+    fn oracle_points_start_at_the_corners_and_fill_the_space() {
+        let k = |name: &str, min: f64, max: f64| knobs::KnobDef {
+            name: name.into(),
+            target: knobs::KnobTarget::Cpu { node: name.into() },
+            min,
+            max,
+            restricts_non_core: true,
+        };
+        let space = KnobSpace {
+            knobs: vec![k("/a", 0.05, 2.0), k("/b", 0.1, 1.0)],
+            period_micros: 100_000,
+            ..KnobSpace::default()
+        };
+        let p = oracle_points(&space, 50, 1);
+        assert_eq!(p.len(), 50);
+        assert_eq!(p[0], vec![0.05, 0.1]);
+        assert_eq!(p[1], vec![2.0, 1.0]);
+        for x in &p {
+            assert!(
+                (0.05..=2.0).contains(&x[0]) && (0.1..=1.0).contains(&x[1]),
+                "{x:?}"
+            );
+        }
+        // Space-filling: every quarter of each knob's range gets points.
+        for (d, (lo, hi)) in [(0.05, 2.0), (0.1, 1.0)].into_iter().enumerate() {
+            for q in 0..4 {
+                let (a, b) = (
+                    lo + (hi - lo) * q as f64 / 4.0,
+                    lo + (hi - lo) * (q + 1) as f64 / 4.0,
+                );
+                assert!(
+                    p.iter().any(|x| x[d] >= a && x[d] <= b),
+                    "knob {d} quarter {q}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn the_oracle_verifies_only_configs_that_held_best_first() {
+        let c = |sat: f64, obj: f64| OracleConfig {
+            x: vec![],
+            config: ResourceConfig::default(),
+            satisfaction: sat,
+            objective: obj,
+            metrics: Default::default(),
+        };
+        let configs = [c(1.0, 0.5), c(0.9, 1.0), c(1.0, 0.8), c(1.0, 0.5)];
+        assert_eq!(oracle_candidates(&configs), vec![2, 0, 3]);
+    }
+}
