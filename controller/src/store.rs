@@ -39,6 +39,17 @@ pub enum StoreError {
         current: String,
         given: String,
     },
+    #[error(
+        "{kind} {namespace}/{name}: precondition failed: metadata.{field} is {current:?}, the request expected {given:?}"
+    )]
+    Precondition {
+        kind: Kind,
+        namespace: String,
+        name: String,
+        field: &'static str,
+        current: String,
+        given: String,
+    },
     #[error("database {path}: {source}")]
     Db {
         path: String,
@@ -252,7 +263,19 @@ impl Store {
     /// `metadata.resourceVersion`, when given, must match the stored one.
     /// Generation is bumped only when the spec changes; an identical write
     /// changes nothing. Returns the stored object and whether it changed.
-    pub fn put(&self, kind: Kind, mut obj: Value, create_only: bool) -> Result<(Value, bool)> {
+    pub fn put(&self, kind: Kind, obj: Value, create_only: bool) -> Result<(Value, bool)> {
+        self.put_with(kind, obj, create_only, Mode::Commit)
+    }
+
+    /// [`Store::put`], or with [`Mode::DryRun`] every check and the resulting
+    /// object without storing anything or telling watchers.
+    pub fn put_with(
+        &self,
+        kind: Kind,
+        mut obj: Value,
+        create_only: bool,
+        mode: Mode,
+    ) -> Result<(Value, bool)> {
         let (ns, name) = key_of(&obj);
         let given_rv = obj["metadata"]["resourceVersion"]
             .as_str()
@@ -288,16 +311,23 @@ impl Store {
                     Outcome::Write(ChangeType::Added)
                 }
             };
+            let old_rv = old
+                .as_ref()
+                .map(|o| o["metadata"]["resourceVersion"].clone());
             let result = match outcome {
                 Outcome::Write(t) => {
-                    Outcome::Written(write(&tx, kind, &ns, &name, obj.clone(), t)?)
+                    let mut change = write(&tx, kind, &ns, &name, obj.clone(), t)?;
+                    if mode == Mode::DryRun {
+                        set_dry_run_version(&mut change.object, old_rv);
+                    }
+                    Outcome::Written(change)
                 }
                 other => other,
             };
-            tx.commit()?;
+            mode.end(tx)?;
             Ok(result)
         })?;
-        self.finish(kind, &ns, &name, out)
+        self.finish(kind, &ns, &name, out, mode)
     }
 
     /// Replace the status subresource only; the spec and generation are untouched.
@@ -308,6 +338,19 @@ impl Store {
         name: &str,
         status: Value,
         given_rv: Option<&str>,
+    ) -> Result<(Value, bool)> {
+        self.put_status_with(kind, namespace, name, status, given_rv, Mode::Commit)
+    }
+
+    /// [`Store::put_status`], optionally as a dry run.
+    pub fn put_status_with(
+        &self,
+        kind: Kind,
+        namespace: &str,
+        name: &str,
+        status: Value,
+        given_rv: Option<&str>,
+        mode: Mode,
     ) -> Result<(Value, bool)> {
         let out = self.with(|c| {
             let tx = c.transaction()?;
@@ -330,22 +373,63 @@ impl Store {
             if old.get("status") == Some(&status) {
                 return Ok(Outcome::Unchanged(old));
             }
+            let old_rv = old["metadata"]["resourceVersion"].clone();
             let mut obj = old;
             obj["status"] = status;
-            let w = write(&tx, kind, namespace, name, obj, ChangeType::Modified)?;
-            tx.commit()?;
+            let mut w = write(&tx, kind, namespace, name, obj, ChangeType::Modified)?;
+            if mode == Mode::DryRun {
+                set_dry_run_version(&mut w.object, Some(old_rv));
+            }
+            mode.end(tx)?;
             Ok(Outcome::Written(w))
         })?;
-        self.finish(kind, namespace, name, out)
+        self.finish(kind, namespace, name, out, mode)
     }
 
     pub fn delete(&self, kind: Kind, namespace: &str, name: &str) -> Result<Value> {
+        self.delete_with(
+            kind,
+            namespace,
+            name,
+            &Preconditions::default(),
+            Mode::Commit,
+        )
+    }
+
+    /// Delete when the stored object still has the `preconditions`' uid and
+    /// resourceVersion (a [`StoreError::Conflict`] otherwise); a dry run only checks.
+    pub fn delete_with(
+        &self,
+        kind: Kind,
+        namespace: &str,
+        name: &str,
+        preconditions: &Preconditions,
+        mode: Mode,
+    ) -> Result<Value> {
         let out = self.with(|c| {
             let tx = c.transaction()?;
             let old = read_object(&tx, kind, namespace, name)?;
             let Some(old) = old else {
                 return Ok(Outcome::Missing);
             };
+            for (field, want) in [
+                ("uid", &preconditions.uid),
+                ("resourceVersion", &preconditions.resource_version),
+            ] {
+                let current = old["metadata"][field].as_str().unwrap_or("").to_string();
+                if let Some(want) = want
+                    && *want != current
+                {
+                    return Ok(Outcome::Precondition {
+                        field,
+                        current,
+                        given: want.clone(),
+                    });
+                }
+            }
+            if mode == Mode::DryRun {
+                return Ok(Outcome::Unchanged(old));
+            }
             tx.execute(
                 "DELETE FROM objects WHERE kind=?1 AND namespace=?2 AND name=?3",
                 params![kind.name(), namespace, name],
@@ -365,7 +449,8 @@ impl Store {
                 object: obj,
             }))
         })?;
-        self.finish(kind, namespace, name, out).map(|(v, _)| v)
+        self.finish(kind, namespace, name, out, mode)
+            .map(|(v, _)| v)
     }
 
     fn finish(
@@ -374,12 +459,15 @@ impl Store {
         namespace: &str,
         name: &str,
         out: Outcome,
+        mode: Mode,
     ) -> Result<(Value, bool)> {
         let (ns, name) = (namespace.to_string(), name.to_string());
         match out {
             Outcome::Written(change) => {
                 let obj = change.object.clone();
-                let _ = self.changes.send(change);
+                if mode == Mode::Commit {
+                    let _ = self.changes.send(change);
+                }
                 Ok((obj, true))
             }
             Outcome::Unchanged(obj) => Ok((obj, false)),
@@ -397,6 +485,18 @@ impl Store {
                 kind,
                 namespace: ns,
                 name,
+                current,
+                given,
+            }),
+            Outcome::Precondition {
+                field,
+                current,
+                given,
+            } => Err(StoreError::Precondition {
+                kind,
+                namespace: ns,
+                name,
+                field,
                 current,
                 given,
             }),
@@ -531,13 +631,60 @@ fn read_object(
     Ok(read_body(c, kind, namespace, name)?.and_then(|b| serde_json::from_str(&b).ok()))
 }
 
+/// Whether a write is stored or only checked (the API's `dryRun=All`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Mode {
+    Commit,
+    /// Run every check and compute the result inside the transaction, then
+    /// roll it back: nothing is stored and no watcher hears of it.
+    DryRun,
+}
+
+impl Mode {
+    fn end(self, tx: rusqlite::Transaction<'_>) -> rusqlite::Result<()> {
+        match self {
+            Mode::Commit => tx.commit(),
+            Mode::DryRun => tx.rollback(),
+        }
+    }
+}
+
+/// Conditions a delete checks against the stored object (Kubernetes'
+/// `DeleteOptions.preconditions`).
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct Preconditions {
+    pub uid: Option<String>,
+    pub resource_version: Option<String>,
+}
+
+/// A dry run's object keeps the stored resourceVersion (none for a create):
+/// the one its rolled-back write drew was never stored.
+fn set_dry_run_version(obj: &mut Value, old_rv: Option<Value>) {
+    match old_rv {
+        Some(rv) => obj["metadata"]["resourceVersion"] = rv,
+        None => {
+            if let Some(m) = obj["metadata"].as_object_mut() {
+                m.remove("resourceVersion");
+            }
+        }
+    }
+}
+
 enum Outcome {
     Write(ChangeType),
     Written(Change),
     Unchanged(Value),
     Missing,
     Exists,
-    Conflict { current: String, given: String },
+    Conflict {
+        current: String,
+        given: String,
+    },
+    Precondition {
+        field: &'static str,
+        current: String,
+        given: String,
+    },
 }
 
 fn write(
@@ -707,6 +854,71 @@ mod tests {
         assert!(matches!(
             s.delete(Kind::RobotStack, "default", "a"),
             Err(StoreError::NotFound { .. })
+        ));
+    }
+
+    #[test]
+    fn dry_runs_check_everything_and_store_nothing() {
+        let (_d, s) = store();
+        let (dry, changed) = s
+            .put_with(Kind::RobotStack, stack("a", "spot"), true, Mode::DryRun)
+            .unwrap();
+        assert!(changed);
+        assert!(dry["metadata"].get("resourceVersion").is_none());
+        assert_eq!(s.get(Kind::RobotStack, "default", "a").unwrap(), None);
+        let (a, _) = s.put(Kind::RobotStack, stack("a", "spot"), true).unwrap();
+        let mut live = s.subscribe();
+        assert!(matches!(
+            s.put_with(Kind::RobotStack, stack("a", "x"), true, Mode::DryRun),
+            Err(StoreError::AlreadyExists { .. })
+        ));
+        let (b, changed) = s
+            .put_with(Kind::RobotStack, stack("a", "jackal"), false, Mode::DryRun)
+            .unwrap();
+        assert!(changed);
+        assert_eq!(b["metadata"]["generation"], 2);
+        assert_eq!(
+            b["metadata"]["resourceVersion"],
+            a["metadata"]["resourceVersion"]
+        );
+        s.put_status_with(
+            Kind::RobotStack,
+            "default",
+            "a",
+            json!({"phase": "X"}),
+            None,
+            Mode::DryRun,
+        )
+        .unwrap();
+        s.delete_with(
+            Kind::RobotStack,
+            "default",
+            "a",
+            &Preconditions::default(),
+            Mode::DryRun,
+        )
+        .unwrap();
+        assert_eq!(
+            s.get(Kind::RobotStack, "default", "a").unwrap(),
+            Some(a.clone())
+        );
+        assert!(live.try_recv().is_err(), "watchers heard of a dry run");
+        let (_, rv) = s.list(Kind::RobotStack, None).unwrap();
+        assert_eq!(
+            rv.to_string(),
+            a["metadata"]["resourceVersion"],
+            "the change log moved"
+        );
+        let stale = Preconditions {
+            resource_version: Some("0".into()),
+            ..Preconditions::default()
+        };
+        assert!(matches!(
+            s.delete_with(Kind::RobotStack, "default", "a", &stale, Mode::Commit),
+            Err(StoreError::Precondition {
+                field: "resourceVersion",
+                ..
+            })
         ));
     }
 

@@ -347,3 +347,165 @@ async fn tcp_requires_the_bearer_token() {
         assert_eq!(resp.status(), want, "{auth:?}");
     }
 }
+
+/// `dryRun=All` runs every check of every verb and stores nothing: the
+/// object, its resourceVersion and the watchers are as before.
+#[tokio::test]
+async fn dry_run_is_honoured_on_every_verb() {
+    let (_d, s) = state();
+    let json = "application/json";
+    let obj = format!("{BASE}/robotstacks/a");
+    let (code, body) = call(
+        &s,
+        "POST",
+        &format!("{BASE}/robotstacks?dryRun=All"),
+        Some(stack("a")),
+        json,
+    )
+    .await;
+    assert_eq!(code, StatusCode::CREATED, "{body}");
+    assert_eq!(body["metadata"]["name"], "a");
+    let (code, _) = call(&s, "GET", &obj, None, json).await;
+    assert_eq!(
+        code,
+        StatusCode::NOT_FOUND,
+        "a dry-run create stored the object"
+    );
+
+    let (_, created) = call(
+        &s,
+        "POST",
+        &format!("{BASE}/robotstacks"),
+        Some(stack("a")),
+        json,
+    )
+    .await;
+    let rv = created["metadata"]["resourceVersion"].clone();
+    // A dry-run create of an existing object fails as the real one would.
+    let (code, _) = call(
+        &s,
+        "POST",
+        &format!("{BASE}/robotstacks?dryRun=All"),
+        Some(stack("a")),
+        json,
+    )
+    .await;
+    assert_eq!(code, StatusCode::CONFLICT);
+
+    let mut live = s.store.subscribe();
+    let mut jackal = stack("a");
+    jackal["spec"]["robot"] = json!({"model": "jackal"});
+    let (code, body) = call(&s, "PUT", &format!("{obj}?dryRun=All"), Some(jackal), json).await;
+    assert_eq!(code, StatusCode::OK, "{body}");
+    assert_eq!(body["spec"]["robot"]["model"], "jackal");
+    assert_eq!(body["metadata"]["generation"], 2, "the would-be generation");
+    assert_eq!(body["metadata"]["resourceVersion"], rv);
+    let (code, body) = call(
+        &s,
+        "PATCH",
+        &format!("{obj}?dryRun=All"),
+        Some(json!({"metadata": {"labels": {"x": "y"}}})),
+        "application/merge-patch+json",
+    )
+    .await;
+    assert_eq!(code, StatusCode::OK, "{body}");
+    assert_eq!(body["metadata"]["labels"]["x"], "y");
+    let (code, body) = call(
+        &s,
+        "PUT",
+        &format!("{obj}/status?dryRun=All"),
+        Some(json!({"status": {"phase": "Accepted"}})),
+        json,
+    )
+    .await;
+    assert_eq!(code, StatusCode::OK, "{body}");
+    let (code, body) = call(
+        &s,
+        "PATCH",
+        &format!("{obj}/status?dryRun=All"),
+        Some(json!({"status": {"phase": "Accepted"}})),
+        "application/merge-patch+json",
+    )
+    .await;
+    assert_eq!(code, StatusCode::OK, "{body}");
+    // kubectl puts dryRun in a DeleteOptions body; other clients in the query.
+    let (code, body) = call(
+        &s,
+        "DELETE",
+        &obj,
+        Some(json!({"kind": "DeleteOptions", "apiVersion": "v1", "propagationPolicy": "Background", "dryRun": ["All"]})),
+        json,
+    )
+    .await;
+    assert_eq!(code, StatusCode::OK, "{body}");
+    let (code, body) = call(&s, "DELETE", &format!("{obj}?dryRun=All"), None, json).await;
+    assert_eq!(code, StatusCode::OK, "{body}");
+    // A value other than All is refused, not taken for a real write.
+    let (code, body) = call(&s, "DELETE", &format!("{obj}?dryRun=Yes"), None, json).await;
+    assert_eq!(code, StatusCode::BAD_REQUEST, "{body}");
+    assert!(
+        body["message"].as_str().unwrap().contains("dryRun"),
+        "{body}"
+    );
+
+    let (code, now) = call(&s, "GET", &obj, None, json).await;
+    assert_eq!(code, StatusCode::OK, "a dry-run delete deleted the object");
+    assert_eq!(now, created, "a dry run changed the stored object");
+    assert!(
+        matches!(
+            live.try_recv(),
+            Err(tokio::sync::broadcast::error::TryRecvError::Empty)
+        ),
+        "watchers heard of a dry run"
+    );
+    assert!(
+        !s.store
+            .events(None, None, Some("a"))
+            .unwrap()
+            .iter()
+            .any(|e| e.reason != "Created"),
+        "a dry run recorded an event"
+    );
+}
+
+/// `DeleteOptions.preconditions` are checked in the delete's transaction.
+#[tokio::test]
+async fn delete_preconditions_are_checked() {
+    let (_d, s) = state();
+    let json = "application/json";
+    let obj = format!("{BASE}/robotstacks/a");
+    let (_, created) = call(
+        &s,
+        "POST",
+        &format!("{BASE}/robotstacks"),
+        Some(stack("a")),
+        json,
+    )
+    .await;
+    let (code, body) = call(
+        &s,
+        "DELETE",
+        &obj,
+        Some(json!({"preconditions": {"uid": "not-the-uid"}})),
+        json,
+    )
+    .await;
+    assert_eq!(code, StatusCode::CONFLICT, "{body}");
+    assert!(
+        body["message"].as_str().unwrap().contains("metadata.uid"),
+        "{body}"
+    );
+    let (code, _) = call(&s, "GET", &obj, None, json).await;
+    assert_eq!(code, StatusCode::OK);
+    let (code, body) = call(
+        &s,
+        "DELETE",
+        &obj,
+        Some(json!({"preconditions": {"uid": created["metadata"]["uid"], "resourceVersion": created["metadata"]["resourceVersion"]}})),
+        json,
+    )
+    .await;
+    assert_eq!(code, StatusCode::OK, "{body}");
+    let (code, _) = call(&s, "GET", &obj, None, json).await;
+    assert_eq!(code, StatusCode::NOT_FOUND);
+}

@@ -17,7 +17,7 @@ use tokio_stream::wrappers::BroadcastStream;
 
 use super::status::{ApiError, status_body};
 use super::{AppState, selector::Selector};
-use crate::store::{Change, ChangeType, key_of};
+use crate::store::{Change, ChangeType, Mode, Preconditions, key_of};
 use crate::table;
 
 type ApiResult<T = Response> = Result<T, ApiError>;
@@ -323,8 +323,19 @@ fn admit(
     Ok(out)
 }
 
-fn dry(p: &ListParams) -> bool {
-    p.dry_run.as_deref().is_some_and(|d| d == "All")
+/// `dryRun`: absent (store), or `All` (check everything, store nothing).
+fn mode_of(dry_run: Option<&str>) -> ApiResult<Mode> {
+    match dry_run {
+        None | Some("") => Ok(Mode::Commit),
+        Some("All") => Ok(Mode::DryRun),
+        Some(other) => Err(ApiError::BadRequest(format!(
+            "dryRun: unsupported value {other:?}; the only value is \"All\""
+        ))),
+    }
+}
+
+fn mode(p: &ListParams) -> ApiResult<Mode> {
+    mode_of(p.dry_run.as_deref())
 }
 
 pub async fn create(
@@ -335,11 +346,12 @@ pub async fn create(
     body: Bytes,
 ) -> ApiResult {
     let kind = kind_of(&plural)?;
+    let mode = mode(&p)?;
     let obj = admit(&s, kind, &ns, None, parse_body(&headers, &body)?)?;
-    if dry(&p) {
-        return Ok((StatusCode::CREATED, Json(obj)).into_response());
+    let (stored, _) = s.store.put_with(kind, obj, true, mode)?;
+    if mode == Mode::DryRun {
+        return Ok((StatusCode::CREATED, Json(stored)).into_response());
     }
-    let (stored, _) = s.store.put(kind, obj, true)?;
     let _ = s.store.record_event(
         &stored,
         "Normal",
@@ -357,13 +369,11 @@ pub async fn replace(
     body: Bytes,
 ) -> ApiResult {
     let kind = kind_of(&plural)?;
+    let mode = mode(&p)?;
     let obj = admit(&s, kind, &ns, Some(&name), parse_body(&headers, &body)?)?;
-    if dry(&p) {
-        return Ok(Json(obj).into_response());
-    }
     let existed = s.store.get(kind, &ns, &name)?.is_some();
-    let (stored, changed) = s.store.put(kind, obj, false)?;
-    if changed {
+    let (stored, changed) = s.store.put_with(kind, obj, false, mode)?;
+    if changed && mode == Mode::Commit {
         let reason = if existed { "Updated" } else { "Created" };
         let _ = s.store.record_event(
             &stored,
@@ -426,6 +436,7 @@ pub async fn patch(
     body: Bytes,
 ) -> ApiResult {
     let kind = kind_of(&plural)?;
+    let mode = mode(&p)?;
     let patch = patch_body(&headers, &body)?;
     let mut obj = s
         .store
@@ -444,11 +455,8 @@ pub async fn patch(
             }
         }
     }
-    if dry(&p) {
-        return Ok(Json(obj).into_response());
-    }
-    let (stored, changed) = s.store.put(kind, obj, false)?;
-    if changed {
+    let (stored, changed) = s.store.put_with(kind, obj, false, mode)?;
+    if changed && mode == Mode::Commit {
         let _ = s.store.record_event(
             &stored,
             "Normal",
@@ -459,18 +467,64 @@ pub async fn patch(
     Ok(Json(stored).into_response())
 }
 
+/// The parts of a `DeleteOptions` body that the store honours.
+#[derive(Debug, Default, Deserialize)]
+#[serde(rename_all = "camelCase")]
+struct DeleteOptions {
+    #[serde(default)]
+    dry_run: Vec<String>,
+    #[serde(default)]
+    preconditions: Option<DeletePreconditions>,
+}
+
+#[derive(Debug, Default, Deserialize)]
+#[serde(rename_all = "camelCase")]
+struct DeletePreconditions {
+    uid: Option<String>,
+    resource_version: Option<String>,
+}
+
+/// kubectl sends `dryRun` in a `DeleteOptions` body; other clients in the query.
 pub async fn delete(
     State(s): State<AppState>,
     Path((ns, plural, name)): Path<(String, String, String)>,
+    Query(p): Query<ListParams>,
+    body: Bytes,
 ) -> ApiResult {
     let kind = kind_of(&plural)?;
-    let obj = s.store.delete(kind, &ns, &name)?;
-    let _ = s.store.record_event(
-        &obj,
-        "Normal",
-        "Deleted",
-        &format!("{} deleted", kind.name()),
-    );
+    let opts: DeleteOptions = if body.iter().all(u8::is_ascii_whitespace) {
+        DeleteOptions::default()
+    } else {
+        serde_path_to_error::deserialize(&mut serde_json::Deserializer::from_slice(&body)).map_err(
+            |e| {
+                ApiError::BadRequest(format!(
+                    "invalid DeleteOptions body at {}: {}",
+                    e.path(),
+                    e.inner()
+                ))
+            },
+        )?
+    };
+    let mut mode = mode(&p)?;
+    for d in &opts.dry_run {
+        if mode_of(Some(d))? == Mode::DryRun {
+            mode = Mode::DryRun;
+        }
+    }
+    let pre = opts.preconditions.unwrap_or_default();
+    let pre = Preconditions {
+        uid: pre.uid,
+        resource_version: pre.resource_version,
+    };
+    let obj = s.store.delete_with(kind, &ns, &name, &pre, mode)?;
+    if mode == Mode::Commit {
+        let _ = s.store.record_event(
+            &obj,
+            "Normal",
+            "Deleted",
+            &format!("{} deleted", kind.name()),
+        );
+    }
     let details = json!({"name": name, "kind": kind.plural(), "uid": obj["metadata"]["uid"]});
     Ok(Json(status_body(StatusCode::OK, "", "", details)).into_response())
 }
@@ -504,25 +558,31 @@ fn validate_status(kind: Kind, status: &Value) -> ApiResult<()> {
 pub async fn put_status(
     State(s): State<AppState>,
     Path((ns, plural, name)): Path<(String, String, String)>,
+    Query(p): Query<ListParams>,
     headers: HeaderMap,
     body: Bytes,
 ) -> ApiResult {
     let kind = kind_of(&plural)?;
+    let mode = mode(&p)?;
     let obj = parse_body(&headers, &body)?;
     let status = obj.get("status").cloned().unwrap_or(Value::Null);
     validate_status(kind, &status)?;
     let rv = obj["metadata"]["resourceVersion"].as_str();
-    let (stored, _) = s.store.put_status(kind, &ns, &name, status, rv)?;
+    let (stored, _) = s
+        .store
+        .put_status_with(kind, &ns, &name, status, rv, mode)?;
     Ok(Json(stored).into_response())
 }
 
 pub async fn patch_status(
     State(s): State<AppState>,
     Path((ns, plural, name)): Path<(String, String, String)>,
+    Query(p): Query<ListParams>,
     headers: HeaderMap,
     body: Bytes,
 ) -> ApiResult {
     let kind = kind_of(&plural)?;
+    let mode = mode(&p)?;
     let patch = patch_body(&headers, &body)?;
     let obj = s
         .store
@@ -531,12 +591,13 @@ pub async fn patch_status(
     let mut status = obj.get("status").cloned().unwrap_or(json!({}));
     merge_patch(&mut status, &patch["status"]);
     validate_status(kind, &status)?;
-    let (stored, _) = s.store.put_status(
+    let (stored, _) = s.store.put_status_with(
         kind,
         &ns,
         &name,
         status,
         patch["metadata"]["resourceVersion"].as_str(),
+        mode,
     )?;
     Ok(Json(stored).into_response())
 }

@@ -114,7 +114,9 @@ impl From<StoreError> for ApiError {
         match e {
             StoreError::NotFound { .. } => ApiError::NotFound(e.to_string()),
             StoreError::AlreadyExists { .. } => ApiError::AlreadyExists(e.to_string()),
-            StoreError::Conflict { .. } => ApiError::Conflict(e.to_string()),
+            StoreError::Conflict { .. } | StoreError::Precondition { .. } => {
+                ApiError::Conflict(e.to_string())
+            }
             StoreError::Db { .. } | StoreError::Corrupt(_) => ApiError::Internal(e.to_string()),
         }
     }
