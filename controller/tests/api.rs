@@ -509,3 +509,94 @@ async fn delete_preconditions_are_checked() {
     let (code, _) = call(&s, "GET", &obj, None, json).await;
     assert_eq!(code, StatusCode::NOT_FOUND);
 }
+
+/// JSON patch (RFC 6902) on the main resource and on the status subresource:
+/// a main-resource patch cannot touch status, a status patch cannot touch
+/// the spec, and a patch that pins an old resourceVersion conflicts.
+#[tokio::test]
+async fn json_patch_on_resource_and_status() {
+    let (_d, s) = state();
+    let jp = "application/json-patch+json";
+    let obj = format!("{BASE}/robotstacks/a");
+    let (_, created) = call(
+        &s,
+        "POST",
+        &format!("{BASE}/robotstacks"),
+        Some(stack("a")),
+        "application/json",
+    )
+    .await;
+    let (code, body) = call(
+        &s,
+        "PATCH",
+        &format!("{obj}/status"),
+        Some(json!([
+            {"op": "add", "path": "/status", "value": {"phase": "Running", "apps": 1, "nodes": 1}},
+            {"op": "replace", "path": "/spec/apps/0/name", "value": "renamed"}
+        ])),
+        jp,
+    )
+    .await;
+    assert_eq!(code, StatusCode::OK, "{body}");
+    assert_eq!(body["status"]["phase"], "Running");
+    assert_eq!(
+        body["spec"]["apps"][0]["name"], "nav",
+        "a status patch changed the spec"
+    );
+    let (code, body) = call(
+        &s,
+        "PATCH",
+        &obj,
+        Some(json!([
+            {"op": "test", "path": "/status/phase", "value": "Running"},
+            {"op": "replace", "path": "/status/phase", "value": "Hacked"},
+            {"op": "move", "from": "/metadata/labels/robot", "path": "/metadata/labels/model"}
+        ])),
+        jp,
+    )
+    .await;
+    assert_eq!(code, StatusCode::OK, "{body}");
+    assert_eq!(
+        body["status"]["phase"], "Running",
+        "a main-resource patch changed status"
+    );
+    assert_eq!(body["metadata"]["labels"], json!({"model": "spot"}));
+    let (code, body) = call(
+        &s,
+        "PATCH",
+        &obj,
+        Some(json!([{"op": "replace", "path": "/metadata/resourceVersion", "value": created["metadata"]["resourceVersion"]},
+                    {"op": "add", "path": "/metadata/labels/x", "value": "y"}])),
+        jp,
+    )
+    .await;
+    assert_eq!(
+        (code, body["reason"].as_str()),
+        (StatusCode::CONFLICT, Some("Conflict")),
+        "{body}"
+    );
+    let (code, body) = call(
+        &s,
+        "PATCH",
+        &obj,
+        Some(json!([{"op": "test", "path": "/metadata/labels/model", "value": "jackal"}])),
+        jp,
+    )
+    .await;
+    assert_eq!(code, StatusCode::UNPROCESSABLE_ENTITY, "{body}");
+    assert_eq!(
+        body["details"]["causes"][0]["field"],
+        "metadata.labels.model"
+    );
+    let (code, _) = call(&s, "PATCH", &obj, Some(json!({"op": "add"})), jp).await;
+    assert_eq!(code, StatusCode::BAD_REQUEST);
+    let (code, _) = call(
+        &s,
+        "PATCH",
+        &obj,
+        Some(json!({})),
+        "application/strategic-merge-patch+json",
+    )
+    .await;
+    assert_eq!(code, StatusCode::UNSUPPORTED_MEDIA_TYPE);
+}

@@ -169,3 +169,73 @@ fn server_dry_run_changes_nothing() {
     assert!(out.contains("deleted"), "{out}");
     assert_eq!(k.object("rs", "basic-nav"), None);
 }
+
+/// `kubectl patch --type json`: operations apply in order, a failing `test`
+/// applies nothing and names the field, validation still runs.
+#[test]
+fn json_patch_with_test_ops() {
+    let k = Kube::start();
+    k.ok(&["apply", "-f", &example("basic-nav")]);
+    let out = k.ok(&[
+        "patch",
+        "rs",
+        "basic-nav",
+        "--type",
+        "json",
+        "-p",
+        r#"[{"op":"test","path":"/spec/robot/model","value":"spot"},
+            {"op":"replace","path":"/spec/robot/model","value":"jackal"},
+            {"op":"add","path":"/metadata/labels/site","value":"lab"}]"#,
+    ]);
+    assert!(
+        out.contains("robotstack.configbot.dev/basic-nav patched"),
+        "{out}"
+    );
+    let obj = k.object("rs", "basic-nav").unwrap();
+    assert_eq!(obj["spec"]["robot"]["model"], "jackal");
+    assert_eq!(obj["metadata"]["labels"]["site"], "lab");
+    assert_eq!(obj["metadata"]["generation"], 2);
+
+    // The test fails (the model is jackal now): the replace before it is not kept.
+    let (ok, out, err) = k.run(&[
+        "patch",
+        "rs",
+        "basic-nav",
+        "--type=json",
+        "-p",
+        r#"[{"op":"replace","path":"/metadata/labels/site","value":"moon"},
+            {"op":"test","path":"/spec/robot/model","value":"spot"}]"#,
+    ]);
+    assert!(!ok, "{out}");
+    assert!(
+        err.contains("spec.robot.model") && err.contains("test failed"),
+        "{err}"
+    );
+    let after = k.object("rs", "basic-nav").unwrap();
+    assert_eq!(after["metadata"]["labels"]["site"], "lab");
+    assert_eq!(
+        after["metadata"]["resourceVersion"],
+        obj["metadata"]["resourceVersion"]
+    );
+
+    // A patch that makes the object invalid is refused by validation.
+    let (ok, _, err) = k.run(&[
+        "patch",
+        "rs",
+        "basic-nav",
+        "--type=json",
+        "-p",
+        r#"[{"op":"add","path":"/spec/colour","value":"red"}]"#,
+    ]);
+    assert!(!ok && err.contains("colour"), "{err}");
+
+    let (ok, _, err) = k.run(&[
+        "patch",
+        "rs",
+        "basic-nav",
+        "--type=json",
+        "-p",
+        r#"[{"op":"remove","path":"/spec/apps/9"}]"#,
+    ]);
+    assert!(!ok && err.contains("out of bounds"), "{err}");
+}

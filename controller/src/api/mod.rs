@@ -4,6 +4,7 @@
 
 pub mod discovery;
 pub mod openapi;
+pub mod patch;
 pub mod resources;
 pub mod selector;
 pub mod status;

@@ -1,5 +1,6 @@
-//! Kubernetes-style resource handlers: list, get, create, replace, merge-patch,
-//! delete, the status subresource, watch streams and `Table` output.
+//! Kubernetes-style resource handlers: list, get, create, replace, patch (merge
+//! and JSON patch, see `patch.rs`), delete, dry runs of every write, the
+//! status subresource, watch streams and `Table` output.
 
 use std::collections::BTreeMap;
 use std::convert::Infallible;
@@ -15,6 +16,7 @@ use serde::Deserialize;
 use serde_json::{Value, json};
 use tokio_stream::wrappers::BroadcastStream;
 
+use super::patch::{Patch, PatchBodyError};
 use super::status::{ApiError, status_body};
 use super::{AppState, selector::Selector};
 use crate::store::{Change, ChangeType, Mode, Preconditions, key_of};
@@ -393,41 +395,68 @@ pub async fn replace(
         .into_response())
 }
 
-/// RFC 7386 JSON merge patch.
-pub fn merge_patch(target: &mut Value, patch: &Value) {
-    match patch {
-        Value::Object(p) => {
-            if !target.is_object() {
-                *target = json!({});
-            }
-            if let Value::Object(t) = target {
-                for (k, v) in p {
-                    if v.is_null() {
-                        t.remove(k);
-                    } else {
-                        merge_patch(t.entry(k.clone()).or_insert(Value::Null), v);
-                    }
-                }
-            }
-        }
-        other => *target = other.clone(),
-    }
-}
+/// How often a patch is read and applied again when another write landed
+/// between its read and its write (as the apiserver does for unpinned patches).
+const PATCH_ATTEMPTS: usize = 5;
 
-fn patch_body(headers: &HeaderMap, body: &Bytes) -> ApiResult<Value> {
+fn parse_patch(headers: &HeaderMap, body: &Bytes) -> ApiResult<Patch> {
     let ct = headers
         .get(header::CONTENT_TYPE)
         .and_then(|v| v.to_str().ok())
         .unwrap_or("");
-    if !ct.starts_with("application/merge-patch+json") {
-        return Err(ApiError::UnsupportedMediaType(format!(
-            "patch type {ct:?} is not supported; use application/merge-patch+json (kubectl: --type=merge)"
-        )));
-    }
-    serde_json::from_slice(body)
-        .map_err(|e| ApiError::BadRequest(format!("invalid JSON patch body: {e}")))
+    Patch::parse(ct, body).map_err(|e| match e {
+        PatchBodyError::UnsupportedType(_) => ApiError::UnsupportedMediaType(e.to_string()),
+        PatchBodyError::Invalid(_) => ApiError::BadRequest(e.to_string()),
+    })
 }
 
+/// Read the object, apply `patch` and hand the result to `write` with the
+/// resourceVersion it must still have. A patch that sets
+/// `metadata.resourceVersion` itself pins it: a conflict is then the
+/// client's; otherwise a conflict means "read again", up to [`PATCH_ATTEMPTS`].
+fn patch_stored(
+    s: &AppState,
+    kind: Kind,
+    ns: &str,
+    name: &str,
+    patch: &Patch,
+    write: impl Fn(Value) -> ApiResult<(Value, bool)>,
+) -> ApiResult<(Value, bool)> {
+    let mut attempt = 0;
+    loop {
+        attempt += 1;
+        let current = s.store.get(kind, ns, name)?.ok_or_else(|| {
+            ApiError::NotFound(format!(
+                "{} {name:?} not found in namespace {ns:?}",
+                kind.plural()
+            ))
+        })?;
+        let mut patched = patch.apply(&current).map_err(|e| {
+            ApiError::invalid(
+                kind.name(),
+                name,
+                vec![configbot_manifests::FieldError {
+                    path: e.field(),
+                    message: e.cause(),
+                }],
+            )
+        })?;
+        let current_rv = &current["metadata"]["resourceVersion"];
+        let pinned = match &patched["metadata"]["resourceVersion"] {
+            Value::Null => false,
+            rv => rv != current_rv,
+        };
+        if !pinned {
+            patched["metadata"]["resourceVersion"] = current_rv.clone();
+        }
+        match write(patched) {
+            Err(ApiError::Conflict(_)) if !pinned && attempt < PATCH_ATTEMPTS => continue,
+            other => return other,
+        }
+    }
+}
+
+/// PATCH of the main resource: merge patch or JSON patch; status is ignored.
 pub async fn patch(
     State(s): State<AppState>,
     Path((ns, plural, name)): Path<(String, String, String)>,
@@ -437,25 +466,13 @@ pub async fn patch(
 ) -> ApiResult {
     let kind = kind_of(&plural)?;
     let mode = mode(&p)?;
-    let patch = patch_body(&headers, &body)?;
-    let mut obj = s
-        .store
-        .get(kind, &ns, &name)?
-        .ok_or_else(|| ApiError::NotFound(format!("{} {name:?} not found", kind.plural())))?;
-    merge_patch(&mut obj, &patch);
-    let given_rv = patch["metadata"]["resourceVersion"]
-        .as_str()
-        .map(str::to_string);
-    let mut obj = admit(&s, kind, &ns, Some(&name), obj)?;
-    match given_rv {
-        Some(rv) => obj["metadata"]["resourceVersion"] = rv.into(),
-        None => {
-            if let Some(m) = obj["metadata"].as_object_mut() {
-                m.remove("resourceVersion");
-            }
-        }
-    }
-    let (stored, changed) = s.store.put_with(kind, obj, false, mode)?;
+    let patch = parse_patch(&headers, &body)?;
+    let (stored, changed) = patch_stored(&s, kind, &ns, &name, &patch, |patched| {
+        let rv = patched["metadata"]["resourceVersion"].clone();
+        let mut obj = admit(&s, kind, &ns, Some(&name), patched)?;
+        obj["metadata"]["resourceVersion"] = rv;
+        Ok(s.store.put_with(kind, obj, false, mode)?)
+    })?;
     if changed && mode == Mode::Commit {
         let _ = s.store.record_event(
             &stored,
@@ -574,6 +591,8 @@ pub async fn put_status(
     Ok(Json(stored).into_response())
 }
 
+/// PATCH of the status subresource: the patch applies to the whole object,
+/// and only the resulting status is kept.
 pub async fn patch_status(
     State(s): State<AppState>,
     Path((ns, plural, name)): Path<(String, String, String)>,
@@ -583,22 +602,14 @@ pub async fn patch_status(
 ) -> ApiResult {
     let kind = kind_of(&plural)?;
     let mode = mode(&p)?;
-    let patch = patch_body(&headers, &body)?;
-    let obj = s
-        .store
-        .get(kind, &ns, &name)?
-        .ok_or_else(|| ApiError::NotFound(format!("{} {name:?} not found", kind.plural())))?;
-    let mut status = obj.get("status").cloned().unwrap_or(json!({}));
-    merge_patch(&mut status, &patch["status"]);
-    validate_status(kind, &status)?;
-    let (stored, _) = s.store.put_status_with(
-        kind,
-        &ns,
-        &name,
-        status,
-        patch["metadata"]["resourceVersion"].as_str(),
-        mode,
-    )?;
+    let patch = parse_patch(&headers, &body)?;
+    let (stored, _) = patch_stored(&s, kind, &ns, &name, &patch, |patched| {
+        let status = patched.get("status").cloned().unwrap_or(json!({}));
+        validate_status(kind, &status)?;
+        let rv = patched["metadata"]["resourceVersion"].as_str();
+        Ok(s.store
+            .put_status_with(kind, &ns, &name, status, rv, mode)?)
+    })?;
     Ok(Json(stored).into_response())
 }
 
@@ -656,19 +667,4 @@ pub async fn namespaces() -> Json<Value> {
             {"apiVersion": "v1", "kind": "Namespace", "metadata": {"name": "default"}, "status": {"phase": "Active"}}
         ]}),
     )
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn merge_patch_follows_rfc7386() {
-        let mut t = json!({"a": "b", "c": {"d": "e", "f": "g"}});
-        merge_patch(&mut t, &json!({"a": "z", "c": {"f": null}}));
-        assert_eq!(t, json!({"a": "z", "c": {"d": "e"}}));
-        let mut t = json!({"a": [1, 2]});
-        merge_patch(&mut t, &json!({"a": [3]}));
-        assert_eq!(t, json!({"a": [3]}));
-    }
 }
