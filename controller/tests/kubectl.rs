@@ -239,3 +239,63 @@ fn json_patch_with_test_ops() {
     ]);
     assert!(!ok && err.contains("out of bounds"), "{err}");
 }
+
+/// Runs the `configbot` CLI against the server's Unix socket; its output.
+fn configbot(k: &Kube, args: &[&str]) -> String {
+    let out = Command::new(BIN)
+        .arg("--server")
+        .arg(format!(
+            "unix://{}",
+            k.dir.path().join("api.sock").display()
+        ))
+        .args(args)
+        .output()
+        .unwrap();
+    let text = format!(
+        "{}{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(out.status.success(), "configbot {args:?}:\n{text}");
+    text
+}
+
+/// A second `kubectl apply` (and `configbot apply`) of unchanged files says
+/// "unchanged" for every object and moves neither resourceVersion nor
+/// generation; a no-op patch is "(no change)".
+#[test]
+fn reapply_of_unchanged_files_is_unchanged() {
+    let k = Kube::start();
+    let files = ["basic-nav", "intermed-nav", "terrain-nav"].map(example);
+    let mut args = vec!["apply"];
+    for f in &files {
+        args.extend(["-f", f.as_str()]);
+    }
+    let first = k.ok(&args);
+    assert_eq!(first.matches(" created").count(), 6, "{first}");
+    let before = k.object("rs", "basic-nav").unwrap();
+    let again = k.ok(&args);
+    assert_eq!(again.matches(" unchanged").count(), 6, "{again}");
+    assert!(!again.contains("configured"), "{again}");
+    let after = k.object("rs", "basic-nav").unwrap();
+    assert_eq!(after["metadata"], before["metadata"]);
+    let out = k.ok(&[
+        "patch",
+        "rs",
+        "basic-nav",
+        "--type=merge",
+        "-p",
+        r#"{"spec":{"robot":{"model":"spot"}}}"#,
+    ]);
+    assert!(out.contains("patched (no change)"), "{out}");
+
+    // configbot apply replaces kubectl's annotation once, then is unchanged.
+    let mut args = vec!["apply"];
+    for f in &files {
+        args.extend(["-f", f.as_str()]);
+    }
+    configbot(&k, &args);
+    let again = configbot(&k, &args);
+    assert_eq!(again.matches(" unchanged").count(), 6, "{again}");
+    assert!(!again.contains("configured"), "{again}");
+}

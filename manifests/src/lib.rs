@@ -185,6 +185,8 @@ impl std::error::Error for ManifestErrors {}
 #[derive(Debug, Clone)]
 pub struct Loaded {
     pub manifest: Manifest,
+    /// The document as written (no defaults filled in): what `apply` sends.
+    pub value: serde_json::Value,
     pub source: String,
     pub document: usize,
 }
@@ -219,6 +221,7 @@ pub fn load(source: &str, text: &str) -> Result<Vec<Loaded>, ManifestErrors> {
         match decode_and_validate(&doc.value) {
             Ok(manifest) => out.push(Loaded {
                 manifest,
+                value: doc.value.clone(),
                 source: source.into(),
                 document: doc.index,
             }),

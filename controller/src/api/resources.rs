@@ -271,7 +271,10 @@ fn parse_body(headers: &HeaderMap, body: &Bytes) -> ApiResult<Value> {
 }
 
 /// Decode and validate an object for `kind` at `ns`/`name` (when the path names one),
-/// returning its normalised JSON.
+/// returning it as the client wrote it. Defaults are not written into the
+/// stored object (readers decode it, which fills them in): a default inside a
+/// list item would make every `kubectl apply` of an unchanged file compute a
+/// non-empty patch (a merge patch replaces whole lists) and say "configured".
 fn admit(
     s: &AppState,
     kind: Kind,
@@ -318,11 +321,10 @@ fn admit(
             return Err(ApiError::invalid(kind.name(), &body_name, errs));
         }
     }
-    let mut out = manifest.to_json();
     if let Some(st) = status {
-        out["status"] = st;
+        obj["status"] = st;
     }
-    Ok(out)
+    Ok(obj)
 }
 
 /// `dryRun`: absent (store), or `All` (check everything, store nothing).

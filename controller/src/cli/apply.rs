@@ -223,7 +223,7 @@ pub async fn run(client: &Client, a: &ApplyArgs) -> anyhow::Result<ExitCode> {
         let kind = l.manifest.kind();
         let m = l.manifest.metadata();
         applied.insert((kind, m.namespace().to_string(), m.name.clone()));
-        let mut obj = l.manifest.to_json();
+        let mut obj = l.value.clone();
         obj["metadata"]["namespace"] = m.namespace().into();
         match apply_one(client, &obj, kind, a.dry_run).await {
             Ok(r) => println!(
