@@ -134,6 +134,9 @@ CREATE TABLE IF NOT EXISTS controller_state (
     scope TEXT NOT NULL, key TEXT NOT NULL, body TEXT NOT NULL, PRIMARY KEY (scope, key));
 ";
 
+/// Live changes (and events) a subscriber may fall behind by before it lags.
+const WATCH_BUFFER: usize = 1024;
+
 /// How many change rows are kept for watches to resume from.
 const CHANGE_LOG_KEEP: i64 = 10_000;
 
@@ -173,9 +176,16 @@ impl Store {
         Ok(Store {
             conn: Mutex::new(conn),
             path: p,
-            changes: broadcast::channel(1024).0,
-            events: broadcast::channel(1024).0,
+            changes: broadcast::channel(WATCH_BUFFER).0,
+            events: broadcast::channel(WATCH_BUFFER).0,
         })
+    }
+
+    /// The same store with room for `n` live changes per watcher before a
+    /// slow one is told it fell behind (tests make it small).
+    pub fn with_watch_buffer(mut self, n: usize) -> Store {
+        self.changes = broadcast::channel(n.max(1)).0;
+        self
     }
 
     fn with<T>(&self, f: impl FnOnce(&mut Connection) -> rusqlite::Result<T>) -> Result<T> {

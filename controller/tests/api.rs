@@ -600,3 +600,123 @@ async fn json_patch_on_resource_and_status() {
     .await;
     assert_eq!(code, StatusCode::UNSUPPORTED_MEDIA_TYPE);
 }
+
+/// A watcher that does not read while more changes happen than the live
+/// channel holds gets an ERROR event with a 410 Expired Status, then the
+/// stream ends (so clients list again instead of missing changes).
+#[tokio::test]
+async fn a_lagging_watcher_gets_410_expired_and_the_stream_ends() {
+    let dir = tempfile::tempdir().unwrap();
+    let store = Arc::new(
+        Store::open(&dir.path().join("api.db"))
+            .unwrap()
+            .with_watch_buffer(4),
+    );
+    let s = AppState {
+        store,
+        metrics: Arc::new(Metrics::new()),
+    };
+    call(
+        &s,
+        "POST",
+        &format!("{BASE}/robotstacks"),
+        Some(stack("a")),
+        "application/json",
+    )
+    .await;
+    let req = Request::builder()
+        .uri(format!("{BASE}/robotstacks?watch=true"))
+        .body(Body::empty())
+        .unwrap();
+    let resp = api::router(s.clone()).oneshot(req).await.unwrap();
+    assert_eq!(resp.status(), StatusCode::OK);
+    // The slow consumer: nothing is read while ten changes happen.
+    for i in 0..10 {
+        let mut st = stack("a");
+        st["spec"]["robot"] = json!({"model": format!("m{i}")});
+        let (code, body) = call(
+            &s,
+            "PUT",
+            &format!("{BASE}/robotstacks/a"),
+            Some(st),
+            "application/json",
+        )
+        .await;
+        assert_eq!(code, StatusCode::OK, "{body}");
+    }
+    let bytes = tokio::time::timeout(
+        std::time::Duration::from_secs(10),
+        resp.into_body().collect(),
+    )
+    .await
+    .expect("the lagging watch stream did not end")
+    .unwrap()
+    .to_bytes();
+    let events: Vec<Value> = bytes
+        .split(|b| *b == b'\n')
+        .filter(|l| !l.is_empty())
+        .map(|l| serde_json::from_slice(l).unwrap())
+        .collect();
+    assert_eq!(events[0]["type"], "ADDED");
+    let last = events.last().unwrap();
+    assert_eq!(last["type"], "ERROR", "{events:?}");
+    assert_eq!(last["object"]["kind"], "Status");
+    assert_eq!(last["object"]["code"], 410);
+    assert_eq!(last["object"]["reason"], "Expired");
+    assert!(
+        events[..events.len() - 1]
+            .iter()
+            .all(|e| e["type"] == "ADDED" || e["type"] == "MODIFIED"),
+        "{events:?}"
+    );
+}
+
+/// A watcher that keeps up gets every change in order and no ERROR.
+#[tokio::test]
+async fn a_watcher_that_keeps_up_sees_every_change() {
+    let dir = tempfile::tempdir().unwrap();
+    let store = Arc::new(
+        Store::open(&dir.path().join("api.db"))
+            .unwrap()
+            .with_watch_buffer(4),
+    );
+    let s = AppState {
+        store,
+        metrics: Arc::new(Metrics::new()),
+    };
+    let req = Request::builder()
+        .uri(format!("{BASE}/robotstacks?watch=true"))
+        .body(Body::empty())
+        .unwrap();
+    let mut body = api::router(s.clone())
+        .oneshot(req)
+        .await
+        .unwrap()
+        .into_body();
+    let mut models = Vec::new();
+    for i in 0..10 {
+        let mut st = stack("a");
+        st["spec"]["robot"] = json!({"model": format!("m{i}")});
+        let method = if i == 0 { "POST" } else { "PUT" };
+        let uri = if i == 0 {
+            format!("{BASE}/robotstacks")
+        } else {
+            format!("{BASE}/robotstacks/a")
+        };
+        call(&s, method, &uri, Some(st), "application/json").await;
+        let frame = tokio::time::timeout(std::time::Duration::from_secs(10), body.frame())
+            .await
+            .expect("no watch event within 10 s")
+            .unwrap()
+            .unwrap();
+        let ev: Value = serde_json::from_slice(frame.data_ref().unwrap()).unwrap();
+        assert_ne!(ev["type"], "ERROR", "{ev}");
+        models.push(
+            ev["object"]["spec"]["robot"]["model"]
+                .as_str()
+                .unwrap()
+                .to_string(),
+        );
+    }
+    assert_eq!(models, (0..10).map(|i| format!("m{i}")).collect::<Vec<_>>());
+}

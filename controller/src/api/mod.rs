@@ -9,6 +9,7 @@ pub mod resources;
 pub mod selector;
 pub mod status;
 pub mod tls;
+pub mod watch;
 
 use std::os::unix::fs::PermissionsExt;
 use std::path::Path;

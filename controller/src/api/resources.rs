@@ -3,26 +3,23 @@
 //! status subresource, watch streams and `Table` output.
 
 use std::collections::BTreeMap;
-use std::convert::Infallible;
 
 use axum::Json;
-use axum::body::{Body, Bytes};
+use axum::body::Bytes;
 use axum::extract::{Path, Query, State};
 use axum::http::{HeaderMap, StatusCode, header};
 use axum::response::{IntoResponse, Response};
 use configbot_manifests::{Kind, Manifest};
-use futures_util::StreamExt;
 use serde::Deserialize;
 use serde_json::{Value, json};
-use tokio_stream::wrappers::BroadcastStream;
 
 use super::patch::{Patch, PatchBodyError};
 use super::status::{ApiError, status_body};
 use super::{AppState, selector::Selector};
-use crate::store::{Change, ChangeType, Mode, Preconditions, key_of};
+use crate::store::{Mode, Preconditions, key_of};
 use crate::table;
 
-type ApiResult<T = Response> = Result<T, ApiError>;
+pub(super) type ApiResult<T = Response> = Result<T, ApiError>;
 
 #[derive(Debug, Default, Deserialize)]
 #[serde(rename_all = "camelCase")]
@@ -49,7 +46,7 @@ fn wants_table(headers: &HeaderMap) -> bool {
         .is_some_and(|a| a.contains("as=Table"))
 }
 
-fn table_of(kind: Kind, objs: &[Value], rv: &str) -> Value {
+pub(super) fn table_of(kind: Kind, objs: &[Value], rv: &str) -> Value {
     let now = time::OffsetDateTime::now_utc();
     let mut cols = vec![json!({"name": "Name", "type": "string", "format": "name", "priority": 0})];
     cols.extend(kind.printer_columns().iter().map(|c| {
@@ -86,9 +83,9 @@ fn field_map(obj: &Value) -> BTreeMap<String, String> {
     .into()
 }
 
-struct Filter {
-    kind: Kind,
-    namespace: Option<String>,
+pub(super) struct Filter {
+    pub(super) kind: Kind,
+    pub(super) namespace: Option<String>,
     labels: Selector,
     fields: Selector,
 }
@@ -105,7 +102,7 @@ impl Filter {
             fields: parse(&p.field_selector)?,
         })
     }
-    fn admits(&self, kind: Kind, obj: &Value) -> bool {
+    pub(super) fn admits(&self, kind: Kind, obj: &Value) -> bool {
         kind == self.kind
             && self
                 .namespace
@@ -144,7 +141,7 @@ async fn list(
     let kind = kind_of(&plural)?;
     let filter = Filter::new(kind, ns.clone(), &p)?;
     if matches!(p.watch.as_deref(), Some("true" | "1")) {
-        return watch(s, filter, p.resource_version, wants_table(&headers));
+        return super::watch::watch(s, filter, p.resource_version, wants_table(&headers));
     }
     let (objs, rv) = s.store.list(kind, ns.as_deref())?;
     let objs: Vec<Value> = objs
@@ -159,74 +156,6 @@ async fn list(
         "metadata": {"resourceVersion": rv.to_string()}, "items": objs,
     }))
     .into_response())
-}
-
-/// A watch: the current objects (or the changes after `resourceVersion`), then
-/// live changes, as newline-delimited JSON `{"type", "object"}` events.
-fn watch(s: AppState, filter: Filter, from: Option<String>, as_table: bool) -> ApiResult {
-    let live = s.store.subscribe();
-    let from_rv = from
-        .as_deref()
-        .and_then(|v| v.parse::<i64>().ok())
-        .filter(|v| *v > 0);
-    let (initial, start_rv) = match from_rv {
-        Some(rv) => {
-            let changes = s
-                .store
-                .changes_since(rv)?
-                .ok_or_else(|| ApiError::Gone(format!("too old resource version: {rv}")))?;
-            let last = changes.last().map_or(rv, |c| c.resource_version);
-            (changes, last)
-        }
-        None => {
-            let (objs, rv) = s.store.list(filter.kind, filter.namespace.as_deref())?;
-            let changes = objs
-                .into_iter()
-                .map(|o| Change {
-                    resource_version: rv,
-                    kind: filter.kind,
-                    type_: ChangeType::Added,
-                    object: o,
-                })
-                .collect();
-            (changes, rv)
-        }
-    };
-    let kind = filter.kind;
-    let encode = move |c: &Change| -> Bytes {
-        let object = if as_table {
-            table_of(
-                kind,
-                std::slice::from_ref(&c.object),
-                &c.resource_version.to_string(),
-            )
-        } else {
-            c.object.clone()
-        };
-        let mut line = json!({"type": c.type_.as_str(), "object": object}).to_string();
-        line.push('\n');
-        Bytes::from(line)
-    };
-    let first: Vec<Result<Bytes, Infallible>> = initial
-        .iter()
-        .filter(|c| filter.admits(c.kind, &c.object))
-        .map(|c| Ok(encode(c)))
-        .collect();
-    let rest = BroadcastStream::new(live).filter_map(move |c| {
-        let out = match c {
-            Ok(c) if c.resource_version > start_rv && filter.admits(c.kind, &c.object) => {
-                Some(Ok(encode(&c)))
-            }
-            _ => None,
-        };
-        async move { out }
-    });
-    let stream = futures_util::stream::iter(first).chain(rest);
-    Response::builder()
-        .header(header::CONTENT_TYPE, "application/json")
-        .header(header::CACHE_CONTROL, "no-cache")
-        .body(Body::from_stream(stream))
-        .map_err(|e| ApiError::Internal(e.to_string()))
 }
 
 pub async fn get(

@@ -129,26 +129,71 @@ pub async fn get(client: &Client, a: &GetArgs) -> anyhow::Result<ExitCode> {
         print_objects(kind, &items, a.output, a.all_namespaces, true)?;
     }
     if a.watch {
-        let rv = list["metadata"]["resourceVersion"]
+        let mut rv = list["metadata"]["resourceVersion"]
             .as_str()
             .unwrap_or("0")
             .to_string();
         let sep = if q.is_empty() { "?" } else { "&" };
-        let wpath = format!(
-            "{}{q}{sep}watch=true&resourceVersion={rv}",
-            path(kind, ns, None)
-        );
         let output = a.output;
         let all = a.all_namespaces;
-        client
-            .watch(&wpath, |ev| {
-                let obj = ev["object"].clone();
-                let _ = print_objects(kind, std::slice::from_ref(&obj), output, all, false);
-                true
+        loop {
+            let wpath = format!(
+                "{}{q}{sep}watch=true&resourceVersion={rv}",
+                path(kind, ns, None)
+            );
+            let expired = watch_until_error(client, &wpath, |obj| {
+                let _ = print_objects(kind, std::slice::from_ref(obj), output, all, false);
             })
             .await?;
+            if !expired {
+                break;
+            }
+            // Fell behind: list again (printing the current objects) and watch from there.
+            let list = client.get(&format!("{}{q}", path(kind, ns, None))).await?;
+            let items = list["items"].as_array().cloned().unwrap_or_default();
+            print_objects(kind, &items, a.output, a.all_namespaces, false)?;
+            rv = list["metadata"]["resourceVersion"]
+                .as_str()
+                .unwrap_or("0")
+                .to_string();
+        }
     }
     Ok(ExitCode::SUCCESS)
+}
+
+/// Hand each watched object to `on_object` until the stream ends (false) or
+/// the server says the watch expired (true: the caller lists again). Any
+/// other ERROR event is an error naming the server's message.
+async fn watch_until_error(
+    client: &Client,
+    wpath: &str,
+    mut on_object: impl FnMut(&Value),
+) -> anyhow::Result<bool> {
+    let mut error = None;
+    client
+        .watch(wpath, |ev| {
+            if ev["type"] == "ERROR" {
+                error = Some(ev["object"].clone());
+                return false;
+            }
+            on_object(&ev["object"]);
+            true
+        })
+        .await?;
+    match error {
+        None => Ok(false),
+        Some(st) if st["code"] == 410 => {
+            eprintln!(
+                "configbot: {}",
+                st["message"].as_str().unwrap_or("the watch expired")
+            );
+            Ok(true)
+        }
+        Some(st) => anyhow::bail!(
+            "watch failed: {}",
+            st["message"].as_str().unwrap_or("unknown error")
+        ),
+    }
 }
 
 /// `configbot get trials SPEC [-w]`: the tuning run of one PerformanceSpec;
@@ -168,18 +213,26 @@ async fn trials(client: &Client, a: &GetArgs) -> anyhow::Result<ExitCode> {
     }
     print!("{}", trials_view(&obj));
     if a.watch {
-        let rv = obj["metadata"]["resourceVersion"].as_str().unwrap_or("0");
-        let wpath = format!(
-            "{}?fieldSelector=metadata.name%3D{name}&watch=true&resourceVersion={rv}",
-            path(kind, Some(&a.namespace), None)
-        );
-        client
-            .watch(&wpath, |ev| {
+        let mut obj = obj;
+        loop {
+            let rv = obj["metadata"]["resourceVersion"].as_str().unwrap_or("0");
+            let wpath = format!(
+                "{}?fieldSelector=metadata.name%3D{name}&watch=true&resourceVersion={rv}",
+                path(kind, Some(&a.namespace), None)
+            );
+            let expired = watch_until_error(client, &wpath, |o| {
                 // Clear the screen and redraw (ANSI), like `watch`.
-                print!("\x1b[2J\x1b[H{}", trials_view(&ev["object"]));
-                true
+                print!("\x1b[2J\x1b[H{}", trials_view(o));
             })
             .await?;
+            if !expired {
+                break;
+            }
+            obj = client
+                .get(&path(kind, Some(&a.namespace), Some(name)))
+                .await?;
+            print!("\x1b[2J\x1b[H{}", trials_view(&obj));
+        }
     }
     Ok(ExitCode::SUCCESS)
 }
