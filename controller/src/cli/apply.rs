@@ -48,8 +48,9 @@ fn collect(path: &Path, out: &mut Vec<std::path::PathBuf>) -> std::io::Result<()
     Ok(())
 }
 
-/// Load and validate every manifest named by `-f`; all errors at once.
-pub fn load_all(files: &[String]) -> Result<Vec<Loaded>, ManifestErrors> {
+/// Load and validate every manifest named by `-f`; all errors at once. An
+/// input with no objects at all is an error ("no objects passed to `verb`").
+pub fn load_all(files: &[String], verb: &str) -> Result<Vec<Loaded>, ManifestErrors> {
     let mut loaded = Vec::new();
     let mut errors = Vec::new();
     let io_error = |source: &str, message: String| ManifestError {
@@ -127,6 +128,12 @@ pub fn load_all(files: &[String]) -> Result<Vec<Loaded>, ManifestErrors> {
                 ),
             });
         }
+    }
+    if errors.is_empty() && loaded.is_empty() {
+        errors.push(io_error(
+            &files.join(", "),
+            format!("no objects passed to {verb}"),
+        ));
     }
     if errors.is_empty() {
         Ok(loaded)
@@ -207,7 +214,7 @@ pub async fn apply_one(
 }
 
 pub async fn run(client: &Client, a: &ApplyArgs) -> anyhow::Result<ExitCode> {
-    let mut loaded = match load_all(&a.files) {
+    let mut loaded = match load_all(&a.files, "apply") {
         Ok(l) => l,
         Err(e) => {
             eprintln!("{e}");

@@ -1,20 +1,13 @@
-//! `configbot get`, `describe` and `delete`: kubectl-like views of objects.
+//! `configbot get` and `describe`: kubectl-like views of objects.
 
 use std::process::ExitCode;
 
+use super::output::{self, Output};
 use crate::client::{Client, path};
 use crate::table;
-use clap::{Args, ValueEnum};
+use clap::Args;
 use configbot_manifests::Kind;
-use hyper::Method;
 use serde_json::Value;
-
-#[derive(Debug, Clone, Copy, ValueEnum)]
-pub enum Output {
-    Wide,
-    Yaml,
-    Json,
-}
 
 #[derive(Debug, Args)]
 pub struct GetArgs {
@@ -31,7 +24,9 @@ pub struct GetArgs {
     /// Label selector, e.g. robot=spot.
     #[arg(short = 'l', long)]
     selector: Option<String>,
-    #[arg(short = 'o', long, value_enum)]
+    /// Output format: wide, yaml, json, name, jsonpath=TEMPLATE or
+    /// custom-columns=HEADER:PATH,... (kubectl's JSONPath, e.g. {.items[*].metadata.name}).
+    #[arg(short = 'o', long, value_parser = output::parse_output)]
     output: Option<Output>,
     /// Keep watching and print every change.
     #[arg(short = 'w', long)]
@@ -46,39 +41,52 @@ pub struct DescribeArgs {
     namespace: String,
 }
 
-#[derive(Debug, Args)]
-pub struct DeleteArgs {
-    kind: String,
-    name: String,
-    #[arg(short = 'n', long, default_value = "default")]
-    namespace: String,
-}
-
 pub fn kind(word: &str) -> anyhow::Result<Kind> {
     Kind::lookup(word).ok_or_else(|| {
         anyhow::anyhow!("unknown kind {word:?}; use robotstack (rs), performancespec (pspec), configprofile (cprof) or trials")
     })
 }
 
+/// Print objects in the `-o` format. `as_list`: the objects are the answer
+/// to a list (json, yaml and jsonpath see one `List`), not one object each.
 fn print_objects(
     kind: Kind,
     objs: &[Value],
-    output: Option<Output>,
+    output: Option<&Output>,
     with_ns: bool,
     header: bool,
+    as_list: bool,
 ) -> anyhow::Result<()> {
+    let list = as_list.then(|| output::list_object(objs));
+    let each: Vec<&Value> = match &list {
+        Some(l) => vec![l],
+        None => objs.iter().collect(),
+    };
     match output {
         Some(Output::Json) => {
-            for o in objs {
+            for o in each {
                 println!("{}", serde_json::to_string_pretty(o)?);
             }
         }
         Some(Output::Yaml) => {
-            for o in objs {
-                print!("---\n{}", serde_saphyr::to_string(o)?);
+            for o in each {
+                print!("{}", serde_saphyr::to_string(o)?);
             }
         }
-        _ => {
+        Some(Output::JsonPath(t)) => {
+            for o in each {
+                print!("{}", t.render(o));
+            }
+        }
+        Some(Output::Name) => {
+            for o in objs {
+                println!("{}", output::name_of(kind, o));
+            }
+        }
+        Some(Output::CustomColumns(cols)) => {
+            print!("{}", output::custom_columns(cols, objs, header));
+        }
+        Some(Output::Wide) | None => {
             let wide = matches!(output, Some(Output::Wide));
             let now = time::OffsetDateTime::now_utc();
             let rows: Vec<Vec<String>> = objs
@@ -123,10 +131,24 @@ pub async fn get(client: &Client, a: &GetArgs) -> anyhow::Result<ExitCode> {
             a.namespace
         );
     }
-    if items.is_empty() && !a.watch {
-        eprintln!("No {} found.", kind.plural());
+    let tabular = matches!(
+        a.output,
+        None | Some(Output::Wide | Output::CustomColumns(_))
+    );
+    if items.is_empty() && tabular {
+        if !a.watch {
+            eprintln!("No {} found.", kind.plural());
+        }
     } else {
-        print_objects(kind, &items, a.output, a.all_namespaces, true)?;
+        let as_list = a.name.is_none();
+        print_objects(
+            kind,
+            &items,
+            a.output.as_ref(),
+            a.all_namespaces,
+            true,
+            as_list,
+        )?;
     }
     if a.watch {
         let mut rv = list["metadata"]["resourceVersion"]
@@ -134,7 +156,7 @@ pub async fn get(client: &Client, a: &GetArgs) -> anyhow::Result<ExitCode> {
             .unwrap_or("0")
             .to_string();
         let sep = if q.is_empty() { "?" } else { "&" };
-        let output = a.output;
+        let output = a.output.as_ref();
         let all = a.all_namespaces;
         loop {
             let wpath = format!(
@@ -142,7 +164,7 @@ pub async fn get(client: &Client, a: &GetArgs) -> anyhow::Result<ExitCode> {
                 path(kind, ns, None)
             );
             let expired = watch_until_error(client, &wpath, |obj| {
-                let _ = print_objects(kind, std::slice::from_ref(obj), output, all, false);
+                let _ = print_objects(kind, std::slice::from_ref(obj), output, all, false, false);
             })
             .await?;
             if !expired {
@@ -151,7 +173,7 @@ pub async fn get(client: &Client, a: &GetArgs) -> anyhow::Result<ExitCode> {
             // Fell behind: list again (printing the current objects) and watch from there.
             let list = client.get(&format!("{}{q}", path(kind, ns, None))).await?;
             let items = list["items"].as_array().cloned().unwrap_or_default();
-            print_objects(kind, &items, a.output, a.all_namespaces, false)?;
+            print_objects(kind, &items, output, all, false, false)?;
             rv = list["metadata"]["resourceVersion"]
                 .as_str()
                 .unwrap_or("0")
@@ -349,24 +371,5 @@ pub async fn describe(client: &Client, a: &DescribeArgs) -> anyhow::Result<ExitC
             s(&e["message"])
         );
     }
-    Ok(ExitCode::SUCCESS)
-}
-
-pub async fn delete(client: &Client, a: &DeleteArgs) -> anyhow::Result<ExitCode> {
-    let kind = kind(&a.kind)?;
-    client
-        .send(
-            Method::DELETE,
-            &path(kind, Some(&a.namespace), Some(&a.name)),
-            None,
-            "application/json",
-        )
-        .await?;
-    println!(
-        "{}.{}/{} deleted",
-        kind.singular(),
-        configbot_manifests::GROUP,
-        a.name
-    );
     Ok(ExitCode::SUCCESS)
 }
