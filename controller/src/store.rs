@@ -761,6 +761,12 @@ fn merge_server_fields(obj: &mut Value, old: &Value) {
     for f in ["uid", "creationTimestamp", "resourceVersion"] {
         m[f] = old["metadata"][f].clone();
     }
+    // A writer that records no field ownership (the controller's own) keeps the old.
+    if m.get("managedFields").is_none()
+        && let Some(mf) = old["metadata"].get("managedFields")
+    {
+        m["managedFields"] = mf.clone();
+    }
     m["generation"] = (if spec_changed {
         generation + 1
     } else {
@@ -781,6 +787,7 @@ fn same_user_content(a: &Value, b: &Value) -> bool {
     a.get("spec") == b.get("spec")
         && a["metadata"]["labels"] == b["metadata"]["labels"]
         && a["metadata"]["annotations"] == b["metadata"]["annotations"]
+        && a["metadata"]["managedFields"] == b["metadata"]["managedFields"]
 }
 
 #[cfg(test)]

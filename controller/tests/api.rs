@@ -720,3 +720,97 @@ async fn a_watcher_that_keeps_up_sees_every_change() {
     }
     assert_eq!(models, (0..10).map(|i| format!("m{i}")).collect::<Vec<_>>());
 }
+
+/// Server-side apply over the router: it needs a field manager, creates the
+/// object, and a conflict is a 409 whose causes name manager and field.
+#[tokio::test]
+async fn server_side_apply_needs_a_manager_and_names_conflicts() {
+    let (_d, s) = state();
+    let apply = "application/apply-patch+yaml";
+    let obj = format!("{BASE}/robotstacks/a");
+    let (code, body) = call(&s, "PATCH", &obj, Some(stack("a")), apply).await;
+    assert_eq!(code, StatusCode::BAD_REQUEST, "{body}");
+    assert!(
+        body["message"].as_str().unwrap().contains("fieldManager"),
+        "{body}"
+    );
+    let (code, body) = call(
+        &s,
+        "PATCH",
+        &format!("{obj}?fieldManager=a"),
+        Some(stack("a")),
+        apply,
+    )
+    .await;
+    assert_eq!(code, StatusCode::CREATED, "{body}");
+    assert_eq!(body["metadata"]["managedFields"][0]["manager"], "a");
+    // Another writer's PUT records an Update entry for the fields it changed.
+    let mut edited = body.clone();
+    edited["metadata"]["labels"]["robot"] = "jackal".into();
+    let (code, body) = call(
+        &s,
+        "PUT",
+        &format!("{obj}?fieldManager=editor"),
+        Some(edited),
+        "application/json",
+    )
+    .await;
+    assert_eq!(code, StatusCode::OK, "{body}");
+    let managers: Vec<(&str, &str)> = body["metadata"]["managedFields"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|e| {
+            (
+                e["manager"].as_str().unwrap(),
+                e["operation"].as_str().unwrap(),
+            )
+        })
+        .collect();
+    assert_eq!(managers, [("a", "Apply"), ("editor", "Update")]);
+    let (code, body) = call(
+        &s,
+        "PATCH",
+        &format!("{obj}?fieldManager=a"),
+        Some(stack("a")),
+        apply,
+    )
+    .await;
+    assert_eq!(code, StatusCode::CONFLICT, "{body}");
+    assert_eq!(
+        body["details"]["causes"][0]["field"],
+        ".metadata.labels.robot"
+    );
+    assert_eq!(
+        body["details"]["causes"][0]["reason"],
+        "FieldManagerConflict"
+    );
+    assert!(
+        body["message"]
+            .as_str()
+            .unwrap()
+            .contains(r#"conflict with "editor""#),
+        "{body}"
+    );
+    let (code, body) = call(
+        &s,
+        "PATCH",
+        &format!("{obj}?fieldManager=a&force=true"),
+        Some(stack("a")),
+        apply,
+    )
+    .await;
+    assert_eq!(code, StatusCode::OK, "{body}");
+    assert_eq!(body["metadata"]["labels"]["robot"], "spot");
+    let mut sneaky = stack("a");
+    sneaky["metadata"]["managedFields"] = json!([]);
+    let (code, _) = call(
+        &s,
+        "PATCH",
+        &format!("{obj}?fieldManager=a"),
+        Some(sneaky),
+        apply,
+    )
+    .await;
+    assert_eq!(code, StatusCode::BAD_REQUEST);
+}

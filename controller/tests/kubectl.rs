@@ -299,3 +299,113 @@ fn reapply_of_unchanged_files_is_unchanged() {
     assert_eq!(again.matches(" unchanged").count(), 6, "{again}");
     assert!(!again.contains("configured"), "{again}");
 }
+
+/// `kubectl apply --server-side`: creates, records the manager's fields, a
+/// second manager setting one of them to another value gets a 409 naming the
+/// field, `--force-conflicts` takes it, and a field the first manager stops
+/// applying is removed.
+#[test]
+fn server_side_apply_with_conflicts() {
+    let k = Kube::start();
+    let file = example("basic-nav");
+    let out = k.ok(&["apply", "--server-side", "-f", &file]);
+    assert!(
+        out.contains("robotstack.configbot.dev/basic-nav serverside-applied"),
+        "{out}"
+    );
+    let managers = |k: &Kube| -> Vec<(String, String)> {
+        let out = k.ok(&[
+            "get",
+            "rs",
+            "basic-nav",
+            "-o",
+            "json",
+            "--show-managed-fields",
+        ]);
+        let obj: serde_json::Value = serde_json::from_str(&out).unwrap();
+        obj["metadata"]["managedFields"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|e| {
+                (
+                    e["manager"].as_str().unwrap().to_string(),
+                    e["fieldsV1"].to_string(),
+                )
+            })
+            .collect()
+    };
+    let first = managers(&k);
+    assert_eq!(first.len(), 1, "{first:?}");
+    assert_eq!(first[0].0, "kubectl");
+    assert!(first[0].1.contains(r#""f:model":{}"#), "{first:?}");
+    let rv = k.object("rs", "basic-nav").unwrap()["metadata"]["resourceVersion"].clone();
+    k.ok(&["apply", "--server-side", "-f", &file]);
+    assert_eq!(
+        k.object("rs", "basic-nav").unwrap()["metadata"]["resourceVersion"],
+        rv,
+        "a no-op server-side apply wrote"
+    );
+
+    let text = std::fs::read_to_string(&file).unwrap();
+    assert!(text.contains("model: spot"), "the example changed: {text}");
+    let other = k.dir.path().join("jackal.yaml");
+    std::fs::write(&other, text.replace("model: spot", "model: jackal")).unwrap();
+    let other = other.to_str().unwrap();
+    let (ok, out, err) = k.run(&[
+        "apply",
+        "--server-side",
+        "--field-manager=fleet",
+        "-f",
+        other,
+    ]);
+    assert!(!ok, "{out}");
+    assert!(
+        err.contains(r#"conflict with "kubectl": .spec.robot.model"#),
+        "{err}"
+    );
+    assert_eq!(
+        k.object("rs", "basic-nav").unwrap()["spec"]["robot"]["model"],
+        "spot"
+    );
+    k.ok(&[
+        "apply",
+        "--server-side",
+        "--field-manager=fleet",
+        "--force-conflicts",
+        "-f",
+        other,
+    ]);
+    assert_eq!(
+        k.object("rs", "basic-nav").unwrap()["spec"]["robot"]["model"],
+        "jackal"
+    );
+    let owners = managers(&k);
+    let kubectl = &owners.iter().find(|(m, _)| m == "kubectl").unwrap().1;
+    let fleet = &owners.iter().find(|(m, _)| m == "fleet").unwrap().1;
+    assert!(
+        !kubectl.contains("f:model") && fleet.contains("f:model"),
+        "{owners:?}"
+    );
+
+    // fleet stops applying the robot's cpus; kubectl still applies them, so they stay.
+    let cpus_line = text
+        .lines()
+        .find(|l| l.trim_start().starts_with("cpus:"))
+        .expect("basic-nav sets robot.cpus");
+    let fewer = k.dir.path().join("fewer.yaml");
+    std::fs::write(
+        &fewer,
+        text.replace("model: spot", "model: jackal")
+            .replace(&format!("{cpus_line}\n"), ""),
+    )
+    .unwrap();
+    k.ok(&[
+        "apply",
+        "--server-side",
+        "--field-manager=fleet",
+        "-f",
+        fewer.to_str().unwrap(),
+    ]);
+    assert!(k.object("rs", "basic-nav").unwrap()["spec"]["robot"]["cpus"].is_number());
+}

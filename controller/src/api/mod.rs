@@ -2,7 +2,9 @@
 //! `kubectl` works, plus `/metrics`. Served on a Unix socket (0600) by
 //! default; on TCP only over TLS with a bearer token.
 
+pub mod apply;
 pub mod discovery;
+pub mod managed;
 pub mod openapi;
 pub mod patch;
 pub mod resources;

@@ -13,10 +13,11 @@ use configbot_manifests::{Kind, Manifest};
 use serde::Deserialize;
 use serde_json::{Value, json};
 
+use super::managed;
 use super::patch::{Patch, PatchBodyError};
 use super::status::{ApiError, status_body};
 use super::{AppState, selector::Selector};
-use crate::store::{Mode, Preconditions, key_of};
+use crate::store::{Mode, Preconditions, key_of, now_rfc3339};
 use crate::table;
 
 pub(super) type ApiResult<T = Response> = Result<T, ApiError>;
@@ -29,9 +30,34 @@ pub struct ListParams {
     watch: Option<String>,
     resource_version: Option<String>,
     dry_run: Option<String>,
+    pub(super) field_manager: Option<String>,
+    force: Option<String>,
 }
 
-fn kind_of(plural: &str) -> ApiResult<Kind> {
+impl ListParams {
+    /// The writer's field manager: `fieldManager`, else the User-Agent's
+    /// program (as the apiserver does), else `unknown`.
+    pub(super) fn manager(&self, headers: &HeaderMap) -> String {
+        self.field_manager
+            .clone()
+            .filter(|m| !m.is_empty())
+            .or_else(|| {
+                headers
+                    .get(header::USER_AGENT)
+                    .and_then(|v| v.to_str().ok())
+                    .and_then(|ua| ua.split('/').next())
+                    .filter(|p| !p.is_empty())
+                    .map(str::to_string)
+            })
+            .unwrap_or_else(|| "unknown".into())
+    }
+
+    pub(super) fn force(&self) -> bool {
+        matches!(self.force.as_deref(), Some("true" | "1"))
+    }
+}
+
+pub(super) fn kind_of(plural: &str) -> ApiResult<Kind> {
     Kind::from_plural(plural).ok_or_else(|| {
         ApiError::NotFound(format!(
             "the server could not find the requested resource {plural:?}"
@@ -204,7 +230,7 @@ fn parse_body(headers: &HeaderMap, body: &Bytes) -> ApiResult<Value> {
 /// stored object (readers decode it, which fills them in): a default inside a
 /// list item would make every `kubectl apply` of an unchanged file compute a
 /// non-empty patch (a merge patch replaces whole lists) and say "configured".
-fn admit(
+pub(super) fn admit(
     s: &AppState,
     kind: Kind,
     ns: &str,
@@ -239,6 +265,10 @@ fn admit(
         )));
     }
     let status = obj.as_object_mut().and_then(|o| o.remove("status"));
+    // Server-owned: the handler records the write's own managedFields.
+    if let Some(m) = obj["metadata"].as_object_mut() {
+        m.remove("managedFields");
+    }
     let manifest = configbot_manifests::decode_and_validate(&obj)
         .map_err(|c| ApiError::invalid(kind.name(), &body_name, c))?;
     if let Manifest::PerformanceSpec(p) = &manifest
@@ -267,7 +297,7 @@ fn mode_of(dry_run: Option<&str>) -> ApiResult<Mode> {
     }
 }
 
-fn mode(p: &ListParams) -> ApiResult<Mode> {
+pub(super) fn mode(p: &ListParams) -> ApiResult<Mode> {
     mode_of(p.dry_run.as_deref())
 }
 
@@ -280,7 +310,8 @@ pub async fn create(
 ) -> ApiResult {
     let kind = kind_of(&plural)?;
     let mode = mode(&p)?;
-    let obj = admit(&s, kind, &ns, None, parse_body(&headers, &body)?)?;
+    let mut obj = admit(&s, kind, &ns, None, parse_body(&headers, &body)?)?;
+    managed::record_update(None, &mut obj, &p.manager(&headers), &now_rfc3339());
     let (stored, _) = s.store.put_with(kind, obj, true, mode)?;
     if mode == Mode::DryRun {
         return Ok((StatusCode::CREATED, Json(stored)).into_response());
@@ -303,8 +334,10 @@ pub async fn replace(
 ) -> ApiResult {
     let kind = kind_of(&plural)?;
     let mode = mode(&p)?;
-    let obj = admit(&s, kind, &ns, Some(&name), parse_body(&headers, &body)?)?;
-    let existed = s.store.get(kind, &ns, &name)?.is_some();
+    let mut obj = admit(&s, kind, &ns, Some(&name), parse_body(&headers, &body)?)?;
+    let old = s.store.get(kind, &ns, &name)?;
+    let existed = old.is_some();
+    managed::record_update(old.as_ref(), &mut obj, &p.manager(&headers), &now_rfc3339());
     let (stored, changed) = s.store.put_with(kind, obj, false, mode)?;
     if changed && mode == Mode::Commit {
         let reason = if existed { "Updated" } else { "Created" };
@@ -330,7 +363,7 @@ pub async fn replace(
 /// between its read and its write (as the apiserver does for unpinned patches).
 const PATCH_ATTEMPTS: usize = 5;
 
-fn parse_patch(headers: &HeaderMap, body: &Bytes) -> ApiResult<Patch> {
+pub(super) fn parse_patch(headers: &HeaderMap, body: &Bytes) -> ApiResult<Patch> {
     let ct = headers
         .get(header::CONTENT_TYPE)
         .and_then(|v| v.to_str().ok())
@@ -351,7 +384,7 @@ fn patch_stored(
     ns: &str,
     name: &str,
     patch: &Patch,
-    write: impl Fn(Value) -> ApiResult<(Value, bool)>,
+    write: impl Fn(&Value, Value) -> ApiResult<(Value, bool)>,
 ) -> ApiResult<(Value, bool)> {
     let mut attempt = 0;
     loop {
@@ -380,7 +413,7 @@ fn patch_stored(
         if !pinned {
             patched["metadata"]["resourceVersion"] = current_rv.clone();
         }
-        match write(patched) {
+        match write(&current, patched) {
             Err(ApiError::Conflict(_)) if !pinned && attempt < PATCH_ATTEMPTS => continue,
             other => return other,
         }
@@ -397,11 +430,16 @@ pub async fn patch(
 ) -> ApiResult {
     let kind = kind_of(&plural)?;
     let mode = mode(&p)?;
+    if super::apply::is_apply(&headers) {
+        return super::apply::server_side_apply(&s, kind, &ns, &name, &p, mode, &body);
+    }
     let patch = parse_patch(&headers, &body)?;
-    let (stored, changed) = patch_stored(&s, kind, &ns, &name, &patch, |patched| {
+    let manager = p.manager(&headers);
+    let (stored, changed) = patch_stored(&s, kind, &ns, &name, &patch, |current, patched| {
         let rv = patched["metadata"]["resourceVersion"].clone();
         let mut obj = admit(&s, kind, &ns, Some(&name), patched)?;
         obj["metadata"]["resourceVersion"] = rv;
+        managed::record_update(Some(current), &mut obj, &manager, &now_rfc3339());
         Ok(s.store.put_with(kind, obj, false, mode)?)
     })?;
     if changed && mode == Mode::Commit {
@@ -477,7 +515,7 @@ pub async fn delete(
     Ok(Json(status_body(StatusCode::OK, "", "", details)).into_response())
 }
 
-fn validate_status(kind: Kind, status: &Value) -> ApiResult<()> {
+pub(super) fn validate_status(kind: Kind, status: &Value) -> ApiResult<()> {
     let r = match kind {
         Kind::RobotStack => {
             serde_path_to_error::deserialize::<_, configbot_manifests::RobotStackStatus>(status)
@@ -534,7 +572,7 @@ pub async fn patch_status(
     let kind = kind_of(&plural)?;
     let mode = mode(&p)?;
     let patch = parse_patch(&headers, &body)?;
-    let (stored, _) = patch_stored(&s, kind, &ns, &name, &patch, |patched| {
+    let (stored, _) = patch_stored(&s, kind, &ns, &name, &patch, |_, patched| {
         let status = patched.get("status").cloned().unwrap_or(json!({}));
         validate_status(kind, &status)?;
         let rv = patched["metadata"]["resourceVersion"].as_str();

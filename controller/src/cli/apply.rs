@@ -168,7 +168,12 @@ pub async fn apply_one(
     dry_run: bool,
 ) -> Result<Applied, ClientError> {
     let (ns, name) = crate::store::key_of(obj);
-    let q = if dry_run { "?dryRun=All" } else { "" };
+    // The field manager its writes are recorded under in managedFields.
+    let q = if dry_run {
+        "?fieldManager=configbot&dryRun=All"
+    } else {
+        "?fieldManager=configbot"
+    };
     for _attempt in 0..3 {
         match client.get(&path(kind, Some(&ns), Some(&name))).await {
             Err(ClientError::Api { code: 404, .. }) => {
