@@ -268,3 +268,85 @@ fn shell_completion() {
     let (succeeded, _, err) = cli(d, &["completion", "tcsh"]);
     assert!(!succeeded && err.contains("tcsh"), "{err}");
 }
+
+/// `get -w` against a server that ends its watch with ERROR 410 Expired (a
+/// watcher that fell behind): the CLI says so, lists again and watches on.
+#[test]
+fn get_watch_lists_again_when_the_watch_expires() {
+    use axum::extract::Query;
+    use std::collections::HashMap;
+    use std::sync::Arc;
+    use std::sync::atomic::{AtomicUsize, Ordering};
+
+    let dir = tempfile::tempdir().unwrap();
+    let socket = dir.path().join("api.sock");
+    let stack = |name: &str| {
+        serde_json::json!({"apiVersion": "configbot.dev/v1alpha1", "kind": "RobotStack",
+            "metadata": {"name": name, "namespace": "default", "creationTimestamp": "2026-01-01T00:00:00Z"},
+            "spec": {"apps": []}, "status": {"phase": "Accepted"}})
+    };
+    let lists = Arc::new(AtomicUsize::new(0));
+    let watches = Arc::new(AtomicUsize::new(0));
+    let (l, w) = (lists.clone(), watches.clone());
+    let app = axum::Router::new().route(
+        "/apis/configbot.dev/v1alpha1/namespaces/default/robotstacks",
+        axum::routing::get(
+            move |Query(q): Query<HashMap<String, String>>| {
+                let (l, w) = (l.clone(), w.clone());
+                async move {
+                    if q.get("watch").map(String::as_str) != Some("true") {
+                        let n = l.fetch_add(1, Ordering::SeqCst);
+                        let items = if n == 0 { vec![stack("first")] } else { vec![stack("first"), stack("relisted")] };
+                        return serde_json::json!({"kind": "RobotStackList", "metadata": {"resourceVersion": "7"}, "items": items}).to_string();
+                    }
+                    if w.fetch_add(1, Ordering::SeqCst) == 0 {
+                        let expired = serde_json::json!({"type": "ERROR", "object": {"kind": "Status", "apiVersion": "v1", "status": "Failure",
+                            "code": 410, "reason": "Expired", "message": "the watch fell 9 changes behind and was closed"}});
+                        format!("{}\n", expired)
+                    } else {
+                        let ev = serde_json::json!({"type": "MODIFIED", "object": stack("later")});
+                        format!("{ev}\n")
+                    }
+                }
+            },
+        ),
+    );
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .unwrap();
+    let listener = rt
+        .block_on(async { tokio::net::UnixListener::bind(&socket) })
+        .unwrap();
+    let server = std::thread::spawn(move || {
+        rt.block_on(async move {
+            let _ = tokio::time::timeout(
+                Duration::from_secs(60),
+                axum::serve(listener, app).into_future(),
+            )
+            .await;
+        })
+    });
+    let out = Command::new(BIN)
+        .arg("--server")
+        .arg(format!("unix://{}", socket.display()))
+        .args(["get", "rs", "-w"])
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{stdout}{stderr}");
+    assert!(stderr.contains("fell 9 changes behind"), "{stderr}");
+    let names: Vec<&str> = stdout
+        .lines()
+        .skip(1)
+        .filter_map(|l| l.split_whitespace().next())
+        .collect();
+    assert_eq!(names, ["first", "first", "relisted", "later"], "{stdout}");
+    assert_eq!(
+        (lists.load(Ordering::SeqCst), watches.load(Ordering::SeqCst)),
+        (2, 2)
+    );
+    // The server thread ends with its timeout; the test does not wait for it.
+    drop(server);
+}

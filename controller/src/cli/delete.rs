@@ -83,7 +83,7 @@ async fn targets(client: &Client, a: &DeleteArgs) -> anyhow::Result<Vec<(Kind, S
 }
 
 /// Percent-encode a query value (selectors contain `=`, `,`, `!` and spaces).
-fn encode_query(s: &str) -> String {
+pub(super) fn encode_query(s: &str) -> String {
     s.bytes()
         .map(|b| match b {
             b'A'..=b'Z' | b'a'..=b'z' | b'0'..=b'9' | b'-' | b'_' | b'.' | b'~' => {

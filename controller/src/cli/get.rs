@@ -112,7 +112,10 @@ pub async fn get(client: &Client, a: &GetArgs) -> anyhow::Result<ExitCode> {
     let ns = (!a.all_namespaces).then_some(a.namespace.as_str());
     let mut query = Vec::new();
     if let Some(sel) = &a.selector {
-        query.push(format!("labelSelector={sel}"));
+        query.push(format!(
+            "labelSelector={}",
+            super::delete::encode_query(sel)
+        ));
     }
     if let Some(n) = &a.name {
         query.push(format!("fieldSelector=metadata.name%3D{n}"));
