@@ -116,8 +116,8 @@ fn which(name: &str) -> Option<PathBuf> {
         .find(|p| p.is_file())
 }
 
-/// `--dry-run=server` on create, update (apply, label, patch) and delete
-/// reports what would happen and changes nothing.
+/// `--dry-run=server` on create, update (apply, label, patch, replace,
+/// server-side apply) and delete reports what would happen and changes nothing.
 #[test]
 fn server_dry_run_changes_nothing() {
     let k = Kube::start();
@@ -148,6 +148,27 @@ fn server_dry_run_changes_nothing() {
     ]);
     // (kubectl patch names no dry run in its output; the request has dryRun=All.)
     assert!(out.contains("basic-nav patched"), "{out}");
+    let jackal = k.dir.path().join("jackal.yaml");
+    std::fs::write(
+        &jackal,
+        std::fs::read_to_string(&file)
+            .unwrap()
+            .replace("model: spot", "model: jackal"),
+    )
+    .unwrap();
+    let jackal = jackal.to_str().unwrap();
+    let out = k.ok(&["replace", "-f", jackal, "--dry-run=server"]);
+    assert!(out.contains("replaced (server dry run)"), "{out}");
+    // (The model is kubectl-client-side-apply's field: taking it needs force.)
+    let out = k.ok(&[
+        "apply",
+        "--server-side",
+        "--force-conflicts",
+        "-f",
+        jackal,
+        "--dry-run=server",
+    ]);
+    assert!(out.contains("serverside-applied (server dry run)"), "{out}");
     let out = k.ok(&["delete", "rs", "basic-nav", "--dry-run=server"]);
     assert!(
         out.contains(r#"robotstack.configbot.dev "basic-nav" deleted (server dry run)"#),
