@@ -39,6 +39,17 @@ pub enum StoreError {
         current: String,
         given: String,
     },
+    #[error(
+        "{kind} {namespace}/{name}: precondition failed: metadata.{field} is {current:?}, the request expected {given:?}"
+    )]
+    Precondition {
+        kind: Kind,
+        namespace: String,
+        name: String,
+        field: &'static str,
+        current: String,
+        given: String,
+    },
     #[error("database {path}: {source}")]
     Db {
         path: String,
@@ -123,6 +134,9 @@ CREATE TABLE IF NOT EXISTS controller_state (
     scope TEXT NOT NULL, key TEXT NOT NULL, body TEXT NOT NULL, PRIMARY KEY (scope, key));
 ";
 
+/// Live changes (and events) a subscriber may fall behind by before it lags.
+const WATCH_BUFFER: usize = 1024;
+
 /// How many change rows are kept for watches to resume from.
 const CHANGE_LOG_KEEP: i64 = 10_000;
 
@@ -162,9 +176,16 @@ impl Store {
         Ok(Store {
             conn: Mutex::new(conn),
             path: p,
-            changes: broadcast::channel(1024).0,
-            events: broadcast::channel(1024).0,
+            changes: broadcast::channel(WATCH_BUFFER).0,
+            events: broadcast::channel(WATCH_BUFFER).0,
         })
+    }
+
+    /// The same store with room for `n` live changes per watcher before a
+    /// slow one is told it fell behind (tests make it small).
+    pub fn with_watch_buffer(mut self, n: usize) -> Store {
+        self.changes = broadcast::channel(n.max(1)).0;
+        self
     }
 
     fn with<T>(&self, f: impl FnOnce(&mut Connection) -> rusqlite::Result<T>) -> Result<T> {
@@ -252,7 +273,19 @@ impl Store {
     /// `metadata.resourceVersion`, when given, must match the stored one.
     /// Generation is bumped only when the spec changes; an identical write
     /// changes nothing. Returns the stored object and whether it changed.
-    pub fn put(&self, kind: Kind, mut obj: Value, create_only: bool) -> Result<(Value, bool)> {
+    pub fn put(&self, kind: Kind, obj: Value, create_only: bool) -> Result<(Value, bool)> {
+        self.put_with(kind, obj, create_only, Mode::Commit)
+    }
+
+    /// [`Store::put`], or with [`Mode::DryRun`] every check and the resulting
+    /// object without storing anything or telling watchers.
+    pub fn put_with(
+        &self,
+        kind: Kind,
+        mut obj: Value,
+        create_only: bool,
+        mode: Mode,
+    ) -> Result<(Value, bool)> {
         let (ns, name) = key_of(&obj);
         let given_rv = obj["metadata"]["resourceVersion"]
             .as_str()
@@ -288,16 +321,23 @@ impl Store {
                     Outcome::Write(ChangeType::Added)
                 }
             };
+            let old_rv = old
+                .as_ref()
+                .map(|o| o["metadata"]["resourceVersion"].clone());
             let result = match outcome {
                 Outcome::Write(t) => {
-                    Outcome::Written(write(&tx, kind, &ns, &name, obj.clone(), t)?)
+                    let mut change = write(&tx, kind, &ns, &name, obj.clone(), t)?;
+                    if mode == Mode::DryRun {
+                        set_dry_run_version(&mut change.object, old_rv);
+                    }
+                    Outcome::Written(change)
                 }
                 other => other,
             };
-            tx.commit()?;
+            mode.end(tx)?;
             Ok(result)
         })?;
-        self.finish(kind, &ns, &name, out)
+        self.finish(kind, &ns, &name, out, mode)
     }
 
     /// Replace the status subresource only; the spec and generation are untouched.
@@ -308,6 +348,19 @@ impl Store {
         name: &str,
         status: Value,
         given_rv: Option<&str>,
+    ) -> Result<(Value, bool)> {
+        self.put_status_with(kind, namespace, name, status, given_rv, Mode::Commit)
+    }
+
+    /// [`Store::put_status`], optionally as a dry run.
+    pub fn put_status_with(
+        &self,
+        kind: Kind,
+        namespace: &str,
+        name: &str,
+        status: Value,
+        given_rv: Option<&str>,
+        mode: Mode,
     ) -> Result<(Value, bool)> {
         let out = self.with(|c| {
             let tx = c.transaction()?;
@@ -330,22 +383,63 @@ impl Store {
             if old.get("status") == Some(&status) {
                 return Ok(Outcome::Unchanged(old));
             }
+            let old_rv = old["metadata"]["resourceVersion"].clone();
             let mut obj = old;
             obj["status"] = status;
-            let w = write(&tx, kind, namespace, name, obj, ChangeType::Modified)?;
-            tx.commit()?;
+            let mut w = write(&tx, kind, namespace, name, obj, ChangeType::Modified)?;
+            if mode == Mode::DryRun {
+                set_dry_run_version(&mut w.object, Some(old_rv));
+            }
+            mode.end(tx)?;
             Ok(Outcome::Written(w))
         })?;
-        self.finish(kind, namespace, name, out)
+        self.finish(kind, namespace, name, out, mode)
     }
 
     pub fn delete(&self, kind: Kind, namespace: &str, name: &str) -> Result<Value> {
+        self.delete_with(
+            kind,
+            namespace,
+            name,
+            &Preconditions::default(),
+            Mode::Commit,
+        )
+    }
+
+    /// Delete when the stored object still has the `preconditions`' uid and
+    /// resourceVersion (a [`StoreError::Conflict`] otherwise); a dry run only checks.
+    pub fn delete_with(
+        &self,
+        kind: Kind,
+        namespace: &str,
+        name: &str,
+        preconditions: &Preconditions,
+        mode: Mode,
+    ) -> Result<Value> {
         let out = self.with(|c| {
             let tx = c.transaction()?;
             let old = read_object(&tx, kind, namespace, name)?;
             let Some(old) = old else {
                 return Ok(Outcome::Missing);
             };
+            for (field, want) in [
+                ("uid", &preconditions.uid),
+                ("resourceVersion", &preconditions.resource_version),
+            ] {
+                let current = old["metadata"][field].as_str().unwrap_or("").to_string();
+                if let Some(want) = want
+                    && *want != current
+                {
+                    return Ok(Outcome::Precondition {
+                        field,
+                        current,
+                        given: want.clone(),
+                    });
+                }
+            }
+            if mode == Mode::DryRun {
+                return Ok(Outcome::Unchanged(old));
+            }
             tx.execute(
                 "DELETE FROM objects WHERE kind=?1 AND namespace=?2 AND name=?3",
                 params![kind.name(), namespace, name],
@@ -365,7 +459,8 @@ impl Store {
                 object: obj,
             }))
         })?;
-        self.finish(kind, namespace, name, out).map(|(v, _)| v)
+        self.finish(kind, namespace, name, out, mode)
+            .map(|(v, _)| v)
     }
 
     fn finish(
@@ -374,12 +469,15 @@ impl Store {
         namespace: &str,
         name: &str,
         out: Outcome,
+        mode: Mode,
     ) -> Result<(Value, bool)> {
         let (ns, name) = (namespace.to_string(), name.to_string());
         match out {
             Outcome::Written(change) => {
                 let obj = change.object.clone();
-                let _ = self.changes.send(change);
+                if mode == Mode::Commit {
+                    let _ = self.changes.send(change);
+                }
                 Ok((obj, true))
             }
             Outcome::Unchanged(obj) => Ok((obj, false)),
@@ -397,6 +495,18 @@ impl Store {
                 kind,
                 namespace: ns,
                 name,
+                current,
+                given,
+            }),
+            Outcome::Precondition {
+                field,
+                current,
+                given,
+            } => Err(StoreError::Precondition {
+                kind,
+                namespace: ns,
+                name,
+                field,
                 current,
                 given,
             }),
@@ -531,13 +641,60 @@ fn read_object(
     Ok(read_body(c, kind, namespace, name)?.and_then(|b| serde_json::from_str(&b).ok()))
 }
 
+/// Whether a write is stored or only checked (the API's `dryRun=All`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Mode {
+    Commit,
+    /// Run every check and compute the result inside the transaction, then
+    /// roll it back: nothing is stored and no watcher hears of it.
+    DryRun,
+}
+
+impl Mode {
+    fn end(self, tx: rusqlite::Transaction<'_>) -> rusqlite::Result<()> {
+        match self {
+            Mode::Commit => tx.commit(),
+            Mode::DryRun => tx.rollback(),
+        }
+    }
+}
+
+/// Conditions a delete checks against the stored object (Kubernetes'
+/// `DeleteOptions.preconditions`).
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct Preconditions {
+    pub uid: Option<String>,
+    pub resource_version: Option<String>,
+}
+
+/// A dry run's object keeps the stored resourceVersion (none for a create):
+/// the one its rolled-back write drew was never stored.
+fn set_dry_run_version(obj: &mut Value, old_rv: Option<Value>) {
+    match old_rv {
+        Some(rv) => obj["metadata"]["resourceVersion"] = rv,
+        None => {
+            if let Some(m) = obj["metadata"].as_object_mut() {
+                m.remove("resourceVersion");
+            }
+        }
+    }
+}
+
 enum Outcome {
     Write(ChangeType),
     Written(Change),
     Unchanged(Value),
     Missing,
     Exists,
-    Conflict { current: String, given: String },
+    Conflict {
+        current: String,
+        given: String,
+    },
+    Precondition {
+        field: &'static str,
+        current: String,
+        given: String,
+    },
 }
 
 fn write(
@@ -604,6 +761,12 @@ fn merge_server_fields(obj: &mut Value, old: &Value) {
     for f in ["uid", "creationTimestamp", "resourceVersion"] {
         m[f] = old["metadata"][f].clone();
     }
+    // A writer that records no field ownership (the controller's own) keeps the old.
+    if m.get("managedFields").is_none()
+        && let Some(mf) = old["metadata"].get("managedFields")
+    {
+        m["managedFields"] = mf.clone();
+    }
     m["generation"] = (if spec_changed {
         generation + 1
     } else {
@@ -624,127 +787,9 @@ fn same_user_content(a: &Value, b: &Value) -> bool {
     a.get("spec") == b.get("spec")
         && a["metadata"]["labels"] == b["metadata"]["labels"]
         && a["metadata"]["annotations"] == b["metadata"]["annotations"]
+        && a["metadata"]["managedFields"] == b["metadata"]["managedFields"]
 }
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-    use serde_json::json;
-
-    fn stack(name: &str, model: &str) -> Value {
-        json!({"apiVersion": "configbot.dev/v1alpha1", "kind": "RobotStack",
-               "metadata": {"name": name}, "spec": {"robot": {"model": model}, "apps": []}})
-    }
-
-    fn store() -> (tempfile::TempDir, Store) {
-        let dir = tempfile::tempdir().unwrap();
-        let s = Store::open(&dir.path().join("t.db")).unwrap();
-        (dir, s)
-    }
-
-    #[test]
-    fn generation_moves_with_spec_only_and_identical_writes_change_nothing() {
-        let (_d, s) = store();
-        let (a, changed) = s.put(Kind::RobotStack, stack("a", "spot"), true).unwrap();
-        assert!(changed);
-        assert_eq!(a["metadata"]["generation"], 1);
-        let (b, changed) = s.put(Kind::RobotStack, stack("a", "spot"), false).unwrap();
-        assert!(!changed);
-        assert_eq!(
-            a["metadata"]["resourceVersion"],
-            b["metadata"]["resourceVersion"]
-        );
-        let (c, _) = s
-            .put_status(
-                Kind::RobotStack,
-                "default",
-                "a",
-                json!({"phase": "Accepted"}),
-                None,
-            )
-            .unwrap();
-        assert_eq!(c["metadata"]["generation"], 1);
-        let (d, changed) = s
-            .put(Kind::RobotStack, stack("a", "jackal"), false)
-            .unwrap();
-        assert!(changed);
-        assert_eq!(d["metadata"]["generation"], 2);
-        assert_eq!(
-            d["status"]["phase"], "Accepted",
-            "status survives spec updates"
-        );
-        assert_eq!(d["metadata"]["uid"], a["metadata"]["uid"]);
-    }
-
-    #[test]
-    fn stale_resource_version_conflicts() {
-        let (_d, s) = store();
-        let (a, _) = s.put(Kind::RobotStack, stack("a", "spot"), true).unwrap();
-        let mut newer = stack("a", "jackal");
-        newer["metadata"]["resourceVersion"] = a["metadata"]["resourceVersion"].clone();
-        s.put(Kind::RobotStack, newer.clone(), false).unwrap();
-        newer["spec"]["robot"]["model"] = "cobot".into();
-        assert!(matches!(
-            s.put(Kind::RobotStack, newer, false),
-            Err(StoreError::Conflict { .. })
-        ));
-        assert!(matches!(
-            s.put(Kind::RobotStack, stack("a", "x"), true),
-            Err(StoreError::AlreadyExists { .. })
-        ));
-    }
-
-    #[test]
-    fn change_log_resumes_and_deletes_are_logged() {
-        let (_d, s) = store();
-        s.put(Kind::RobotStack, stack("a", "spot"), true).unwrap();
-        let (_, rv) = s.list(Kind::RobotStack, None).unwrap();
-        s.put(Kind::RobotStack, stack("b", "spot"), true).unwrap();
-        s.delete(Kind::RobotStack, "default", "a").unwrap();
-        let changes = s.changes_since(rv).unwrap().unwrap();
-        let kinds: Vec<_> = changes.iter().map(|c| c.type_).collect();
-        assert_eq!(kinds, vec![ChangeType::Added, ChangeType::Deleted]);
-        assert!(matches!(
-            s.delete(Kind::RobotStack, "default", "a"),
-            Err(StoreError::NotFound { .. })
-        ));
-    }
-
-    #[test]
-    fn controller_state_round_trips_and_survives_reopen() {
-        let dir = tempfile::tempdir().unwrap();
-        let path = dir.path().join("t.db");
-        {
-            let s = Store::open(&path).unwrap();
-            s.put_state("tuning", "default/a", "{\"n\":1}").unwrap();
-            s.put_state("tuning", "default/a", "{\"n\":2}").unwrap();
-            s.put_state("tuning", "default/b", "{}").unwrap();
-            s.delete_state("tuning", "default/b").unwrap();
-        }
-        let s = Store::open(&path).unwrap();
-        assert_eq!(
-            s.get_state("tuning", "default/a").unwrap().as_deref(),
-            Some("{\"n\":2}")
-        );
-        assert_eq!(s.get_state("tuning", "default/b").unwrap(), None);
-        assert_eq!(s.get_state("other", "default/a").unwrap(), None);
-    }
-
-    #[test]
-    fn data_survives_reopen() {
-        let dir = tempfile::tempdir().unwrap();
-        let path = dir.path().join("t.db");
-        {
-            let s = Store::open(&path).unwrap();
-            s.put(Kind::RobotStack, stack("a", "spot"), true).unwrap();
-            s.record_event(&stack("a", "spot"), "Normal", "Applied", "hello")
-                .unwrap();
-        }
-        let s = Store::open(&path).unwrap();
-        assert!(s.get(Kind::RobotStack, "default", "a").unwrap().is_some());
-        assert_eq!(
-            s.events(None, None, Some("a")).unwrap()[0].reason,
-            "Applied"
-        );
-    }
-}
+#[path = "store_tests.rs"]
+mod tests;

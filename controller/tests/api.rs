@@ -347,3 +347,470 @@ async fn tcp_requires_the_bearer_token() {
         assert_eq!(resp.status(), want, "{auth:?}");
     }
 }
+
+/// `dryRun=All` runs every check of every verb and stores nothing: the
+/// object, its resourceVersion and the watchers are as before.
+#[tokio::test]
+async fn dry_run_is_honoured_on_every_verb() {
+    let (_d, s) = state();
+    let json = "application/json";
+    let obj = format!("{BASE}/robotstacks/a");
+    let (code, body) = call(
+        &s,
+        "POST",
+        &format!("{BASE}/robotstacks?dryRun=All"),
+        Some(stack("a")),
+        json,
+    )
+    .await;
+    assert_eq!(code, StatusCode::CREATED, "{body}");
+    assert_eq!(body["metadata"]["name"], "a");
+    let (code, _) = call(&s, "GET", &obj, None, json).await;
+    assert_eq!(
+        code,
+        StatusCode::NOT_FOUND,
+        "a dry-run create stored the object"
+    );
+
+    let (_, created) = call(
+        &s,
+        "POST",
+        &format!("{BASE}/robotstacks"),
+        Some(stack("a")),
+        json,
+    )
+    .await;
+    let rv = created["metadata"]["resourceVersion"].clone();
+    // A dry-run create of an existing object fails as the real one would.
+    let (code, _) = call(
+        &s,
+        "POST",
+        &format!("{BASE}/robotstacks?dryRun=All"),
+        Some(stack("a")),
+        json,
+    )
+    .await;
+    assert_eq!(code, StatusCode::CONFLICT);
+
+    let mut live = s.store.subscribe();
+    let mut jackal = stack("a");
+    jackal["spec"]["robot"] = json!({"model": "jackal"});
+    let (code, body) = call(&s, "PUT", &format!("{obj}?dryRun=All"), Some(jackal), json).await;
+    assert_eq!(code, StatusCode::OK, "{body}");
+    assert_eq!(body["spec"]["robot"]["model"], "jackal");
+    assert_eq!(body["metadata"]["generation"], 2, "the would-be generation");
+    assert_eq!(body["metadata"]["resourceVersion"], rv);
+    let (code, body) = call(
+        &s,
+        "PATCH",
+        &format!("{obj}?dryRun=All"),
+        Some(json!({"metadata": {"labels": {"x": "y"}}})),
+        "application/merge-patch+json",
+    )
+    .await;
+    assert_eq!(code, StatusCode::OK, "{body}");
+    assert_eq!(body["metadata"]["labels"]["x"], "y");
+    let (code, body) = call(
+        &s,
+        "PUT",
+        &format!("{obj}/status?dryRun=All"),
+        Some(json!({"status": {"phase": "Accepted"}})),
+        json,
+    )
+    .await;
+    assert_eq!(code, StatusCode::OK, "{body}");
+    let (code, body) = call(
+        &s,
+        "PATCH",
+        &format!("{obj}/status?dryRun=All"),
+        Some(json!({"status": {"phase": "Accepted"}})),
+        "application/merge-patch+json",
+    )
+    .await;
+    assert_eq!(code, StatusCode::OK, "{body}");
+    // kubectl puts dryRun in a DeleteOptions body; other clients in the query.
+    let (code, body) = call(
+        &s,
+        "DELETE",
+        &obj,
+        Some(json!({"kind": "DeleteOptions", "apiVersion": "v1", "propagationPolicy": "Background", "dryRun": ["All"]})),
+        json,
+    )
+    .await;
+    assert_eq!(code, StatusCode::OK, "{body}");
+    let (code, body) = call(&s, "DELETE", &format!("{obj}?dryRun=All"), None, json).await;
+    assert_eq!(code, StatusCode::OK, "{body}");
+    // A value other than All is refused, not taken for a real write.
+    let (code, body) = call(&s, "DELETE", &format!("{obj}?dryRun=Yes"), None, json).await;
+    assert_eq!(code, StatusCode::BAD_REQUEST, "{body}");
+    assert!(
+        body["message"].as_str().unwrap().contains("dryRun"),
+        "{body}"
+    );
+
+    let (code, now) = call(&s, "GET", &obj, None, json).await;
+    assert_eq!(code, StatusCode::OK, "a dry-run delete deleted the object");
+    assert_eq!(now, created, "a dry run changed the stored object");
+    assert!(
+        matches!(
+            live.try_recv(),
+            Err(tokio::sync::broadcast::error::TryRecvError::Empty)
+        ),
+        "watchers heard of a dry run"
+    );
+    assert!(
+        !s.store
+            .events(None, None, Some("a"))
+            .unwrap()
+            .iter()
+            .any(|e| e.reason != "Created"),
+        "a dry run recorded an event"
+    );
+}
+
+/// `DeleteOptions.preconditions` are checked in the delete's transaction.
+#[tokio::test]
+async fn delete_preconditions_are_checked() {
+    let (_d, s) = state();
+    let json = "application/json";
+    let obj = format!("{BASE}/robotstacks/a");
+    let (_, created) = call(
+        &s,
+        "POST",
+        &format!("{BASE}/robotstacks"),
+        Some(stack("a")),
+        json,
+    )
+    .await;
+    let (code, body) = call(
+        &s,
+        "DELETE",
+        &obj,
+        Some(json!({"preconditions": {"uid": "not-the-uid"}})),
+        json,
+    )
+    .await;
+    assert_eq!(code, StatusCode::CONFLICT, "{body}");
+    assert!(
+        body["message"].as_str().unwrap().contains("metadata.uid"),
+        "{body}"
+    );
+    let (code, _) = call(&s, "GET", &obj, None, json).await;
+    assert_eq!(code, StatusCode::OK);
+    let (code, body) = call(
+        &s,
+        "DELETE",
+        &obj,
+        Some(json!({"preconditions": {"uid": created["metadata"]["uid"], "resourceVersion": created["metadata"]["resourceVersion"]}})),
+        json,
+    )
+    .await;
+    assert_eq!(code, StatusCode::OK, "{body}");
+    let (code, _) = call(&s, "GET", &obj, None, json).await;
+    assert_eq!(code, StatusCode::NOT_FOUND);
+}
+
+/// JSON patch (RFC 6902) on the main resource and on the status subresource:
+/// a main-resource patch cannot touch status, a status patch cannot touch
+/// the spec, and a patch that pins an old resourceVersion conflicts.
+#[tokio::test]
+async fn json_patch_on_resource_and_status() {
+    let (_d, s) = state();
+    let jp = "application/json-patch+json";
+    let obj = format!("{BASE}/robotstacks/a");
+    let (_, created) = call(
+        &s,
+        "POST",
+        &format!("{BASE}/robotstacks"),
+        Some(stack("a")),
+        "application/json",
+    )
+    .await;
+    let (code, body) = call(
+        &s,
+        "PATCH",
+        &format!("{obj}/status"),
+        Some(json!([
+            {"op": "add", "path": "/status", "value": {"phase": "Running", "apps": 1, "nodes": 1}},
+            {"op": "replace", "path": "/spec/apps/0/name", "value": "renamed"}
+        ])),
+        jp,
+    )
+    .await;
+    assert_eq!(code, StatusCode::OK, "{body}");
+    assert_eq!(body["status"]["phase"], "Running");
+    assert_eq!(
+        body["spec"]["apps"][0]["name"], "nav",
+        "a status patch changed the spec"
+    );
+    let (code, body) = call(
+        &s,
+        "PATCH",
+        &obj,
+        Some(json!([
+            {"op": "test", "path": "/status/phase", "value": "Running"},
+            {"op": "replace", "path": "/status/phase", "value": "Hacked"},
+            {"op": "move", "from": "/metadata/labels/robot", "path": "/metadata/labels/model"}
+        ])),
+        jp,
+    )
+    .await;
+    assert_eq!(code, StatusCode::OK, "{body}");
+    assert_eq!(
+        body["status"]["phase"], "Running",
+        "a main-resource patch changed status"
+    );
+    assert_eq!(body["metadata"]["labels"], json!({"model": "spot"}));
+    let (code, body) = call(
+        &s,
+        "PATCH",
+        &obj,
+        Some(json!([{"op": "replace", "path": "/metadata/resourceVersion", "value": created["metadata"]["resourceVersion"]},
+                    {"op": "add", "path": "/metadata/labels/x", "value": "y"}])),
+        jp,
+    )
+    .await;
+    assert_eq!(
+        (code, body["reason"].as_str()),
+        (StatusCode::CONFLICT, Some("Conflict")),
+        "{body}"
+    );
+    let (code, body) = call(
+        &s,
+        "PATCH",
+        &obj,
+        Some(json!([{"op": "test", "path": "/metadata/labels/model", "value": "jackal"}])),
+        jp,
+    )
+    .await;
+    assert_eq!(code, StatusCode::UNPROCESSABLE_ENTITY, "{body}");
+    assert_eq!(
+        body["details"]["causes"][0]["field"],
+        "metadata.labels.model"
+    );
+    let (code, _) = call(&s, "PATCH", &obj, Some(json!({"op": "add"})), jp).await;
+    assert_eq!(code, StatusCode::BAD_REQUEST);
+    let (code, _) = call(
+        &s,
+        "PATCH",
+        &obj,
+        Some(json!({})),
+        "application/strategic-merge-patch+json",
+    )
+    .await;
+    assert_eq!(code, StatusCode::UNSUPPORTED_MEDIA_TYPE);
+}
+
+/// A watcher that does not read while more changes happen than the live
+/// channel holds gets an ERROR event with a 410 Expired Status, then the
+/// stream ends (so clients list again instead of missing changes).
+#[tokio::test]
+async fn a_lagging_watcher_gets_410_expired_and_the_stream_ends() {
+    let dir = tempfile::tempdir().unwrap();
+    let store = Arc::new(
+        Store::open(&dir.path().join("api.db"))
+            .unwrap()
+            .with_watch_buffer(4),
+    );
+    let s = AppState {
+        store,
+        metrics: Arc::new(Metrics::new()),
+    };
+    call(
+        &s,
+        "POST",
+        &format!("{BASE}/robotstacks"),
+        Some(stack("a")),
+        "application/json",
+    )
+    .await;
+    let req = Request::builder()
+        .uri(format!("{BASE}/robotstacks?watch=true"))
+        .body(Body::empty())
+        .unwrap();
+    let resp = api::router(s.clone()).oneshot(req).await.unwrap();
+    assert_eq!(resp.status(), StatusCode::OK);
+    // The slow consumer: nothing is read while ten changes happen.
+    for i in 0..10 {
+        let mut st = stack("a");
+        st["spec"]["robot"] = json!({"model": format!("m{i}")});
+        let (code, body) = call(
+            &s,
+            "PUT",
+            &format!("{BASE}/robotstacks/a"),
+            Some(st),
+            "application/json",
+        )
+        .await;
+        assert_eq!(code, StatusCode::OK, "{body}");
+    }
+    let bytes = tokio::time::timeout(
+        std::time::Duration::from_secs(10),
+        resp.into_body().collect(),
+    )
+    .await
+    .expect("the lagging watch stream did not end")
+    .unwrap()
+    .to_bytes();
+    let events: Vec<Value> = bytes
+        .split(|b| *b == b'\n')
+        .filter(|l| !l.is_empty())
+        .map(|l| serde_json::from_slice(l).unwrap())
+        .collect();
+    assert_eq!(events[0]["type"], "ADDED");
+    let last = events.last().unwrap();
+    assert_eq!(last["type"], "ERROR", "{events:?}");
+    assert_eq!(last["object"]["kind"], "Status");
+    assert_eq!(last["object"]["code"], 410);
+    assert_eq!(last["object"]["reason"], "Expired");
+    assert!(
+        events[..events.len() - 1]
+            .iter()
+            .all(|e| e["type"] == "ADDED" || e["type"] == "MODIFIED"),
+        "{events:?}"
+    );
+}
+
+/// A watcher that keeps up gets every change in order and no ERROR.
+#[tokio::test]
+async fn a_watcher_that_keeps_up_sees_every_change() {
+    let dir = tempfile::tempdir().unwrap();
+    let store = Arc::new(
+        Store::open(&dir.path().join("api.db"))
+            .unwrap()
+            .with_watch_buffer(4),
+    );
+    let s = AppState {
+        store,
+        metrics: Arc::new(Metrics::new()),
+    };
+    let req = Request::builder()
+        .uri(format!("{BASE}/robotstacks?watch=true"))
+        .body(Body::empty())
+        .unwrap();
+    let mut body = api::router(s.clone())
+        .oneshot(req)
+        .await
+        .unwrap()
+        .into_body();
+    let mut models = Vec::new();
+    for i in 0..10 {
+        let mut st = stack("a");
+        st["spec"]["robot"] = json!({"model": format!("m{i}")});
+        let method = if i == 0 { "POST" } else { "PUT" };
+        let uri = if i == 0 {
+            format!("{BASE}/robotstacks")
+        } else {
+            format!("{BASE}/robotstacks/a")
+        };
+        call(&s, method, &uri, Some(st), "application/json").await;
+        let frame = tokio::time::timeout(std::time::Duration::from_secs(10), body.frame())
+            .await
+            .expect("no watch event within 10 s")
+            .unwrap()
+            .unwrap();
+        let ev: Value = serde_json::from_slice(frame.data_ref().unwrap()).unwrap();
+        assert_ne!(ev["type"], "ERROR", "{ev}");
+        models.push(
+            ev["object"]["spec"]["robot"]["model"]
+                .as_str()
+                .unwrap()
+                .to_string(),
+        );
+    }
+    assert_eq!(models, (0..10).map(|i| format!("m{i}")).collect::<Vec<_>>());
+}
+
+/// Server-side apply over the router: it needs a field manager, creates the
+/// object, and a conflict is a 409 whose causes name manager and field.
+#[tokio::test]
+async fn server_side_apply_needs_a_manager_and_names_conflicts() {
+    let (_d, s) = state();
+    let apply = "application/apply-patch+yaml";
+    let obj = format!("{BASE}/robotstacks/a");
+    let (code, body) = call(&s, "PATCH", &obj, Some(stack("a")), apply).await;
+    assert_eq!(code, StatusCode::BAD_REQUEST, "{body}");
+    assert!(
+        body["message"].as_str().unwrap().contains("fieldManager"),
+        "{body}"
+    );
+    let (code, body) = call(
+        &s,
+        "PATCH",
+        &format!("{obj}?fieldManager=a"),
+        Some(stack("a")),
+        apply,
+    )
+    .await;
+    assert_eq!(code, StatusCode::CREATED, "{body}");
+    assert_eq!(body["metadata"]["managedFields"][0]["manager"], "a");
+    // Another writer's PUT records an Update entry for the fields it changed.
+    let mut edited = body.clone();
+    edited["metadata"]["labels"]["robot"] = "jackal".into();
+    let (code, body) = call(
+        &s,
+        "PUT",
+        &format!("{obj}?fieldManager=editor"),
+        Some(edited),
+        "application/json",
+    )
+    .await;
+    assert_eq!(code, StatusCode::OK, "{body}");
+    let managers: Vec<(&str, &str)> = body["metadata"]["managedFields"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|e| {
+            (
+                e["manager"].as_str().unwrap(),
+                e["operation"].as_str().unwrap(),
+            )
+        })
+        .collect();
+    assert_eq!(managers, [("a", "Apply"), ("editor", "Update")]);
+    let (code, body) = call(
+        &s,
+        "PATCH",
+        &format!("{obj}?fieldManager=a"),
+        Some(stack("a")),
+        apply,
+    )
+    .await;
+    assert_eq!(code, StatusCode::CONFLICT, "{body}");
+    assert_eq!(
+        body["details"]["causes"][0]["field"],
+        ".metadata.labels.robot"
+    );
+    assert_eq!(
+        body["details"]["causes"][0]["reason"],
+        "FieldManagerConflict"
+    );
+    assert!(
+        body["message"]
+            .as_str()
+            .unwrap()
+            .contains(r#"conflict with "editor""#),
+        "{body}"
+    );
+    let (code, body) = call(
+        &s,
+        "PATCH",
+        &format!("{obj}?fieldManager=a&force=true"),
+        Some(stack("a")),
+        apply,
+    )
+    .await;
+    assert_eq!(code, StatusCode::OK, "{body}");
+    assert_eq!(body["metadata"]["labels"]["robot"], "spot");
+    let mut sneaky = stack("a");
+    sneaky["metadata"]["managedFields"] = json!([]);
+    let (code, _) = call(
+        &s,
+        "PATCH",
+        &format!("{obj}?fieldManager=a"),
+        Some(sneaky),
+        apply,
+    )
+    .await;
+    assert_eq!(code, StatusCode::BAD_REQUEST);
+}

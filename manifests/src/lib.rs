@@ -185,8 +185,39 @@ impl std::error::Error for ManifestErrors {}
 #[derive(Debug, Clone)]
 pub struct Loaded {
     pub manifest: Manifest,
+    /// The document as written (no defaults filled in): what `apply` sends.
+    pub value: serde_json::Value,
     pub source: String,
     pub document: usize,
+    /// `items[N].` when the manifest is item N of a `v1` `List` document
+    /// (what `get -o yaml` prints for a list), else empty.
+    pub path_prefix: String,
+}
+
+/// The manifests of one document: the document itself, or the items of a
+/// `v1` `List`, each with the path prefix its errors get.
+fn manifests_of(value: &serde_json::Value) -> Vec<(String, &serde_json::Value)> {
+    if value["kind"] == "List" && value["apiVersion"] == "v1" {
+        match value["items"].as_array() {
+            Some(items) => items
+                .iter()
+                .enumerate()
+                .map(|(i, item)| (format!("items[{i}]."), item))
+                .collect(),
+            None => vec![(String::new(), value)],
+        }
+    } else {
+        vec![(String::new(), value)]
+    }
+}
+
+/// `prefix` + `path`, without a dangling dot.
+fn prefixed(prefix: &str, path: &str) -> String {
+    if path.is_empty() || path.starts_with('[') {
+        format!("{}{path}", prefix.trim_end_matches('.'))
+    } else {
+        format!("{prefix}{path}")
+    }
 }
 
 /// Parse, decode and validate every document of `text`. Either every document
@@ -205,24 +236,39 @@ pub fn load(source: &str, text: &str) -> Result<Vec<Loaded>, ManifestErrors> {
     let mut out = Vec::new();
     let mut errors = Vec::new();
     for doc in &docs {
-        let located = |fe: FieldError| {
-            let pos = doc.position_of(&fe.path);
-            ManifestError {
-                source: source.into(),
-                document: Some(doc.index),
-                path: fe.path,
-                line: pos.map(|p| p.line),
-                column: pos.map(|p| p.column),
-                message: fe.message,
+        for (prefix, value) in manifests_of(&doc.value) {
+            let located = |fe: FieldError| {
+                let path = prefixed(&prefix, &fe.path);
+                let pos = doc.position_of(&path);
+                ManifestError {
+                    source: source.into(),
+                    document: Some(doc.index),
+                    path,
+                    line: pos.map(|p| p.line),
+                    column: pos.map(|p| p.column),
+                    message: fe.message,
+                }
+            };
+            let decoded = match value.as_str() {
+                // `--- ---`: YAML reads the second marker as a scalar document.
+                Some(text) if text.starts_with("---") => Err(vec![FieldError {
+                    path: String::new(),
+                    message: format!(
+                        "invalid document separator {text:?}: \"---\" must stand alone on its line"
+                    ),
+                }]),
+                _ => decode_and_validate(value),
+            };
+            match decoded {
+                Ok(manifest) => out.push(Loaded {
+                    manifest,
+                    value: value.clone(),
+                    source: source.into(),
+                    document: doc.index,
+                    path_prefix: prefix.clone(),
+                }),
+                Err(es) => errors.extend(es.into_iter().map(located)),
             }
-        };
-        match decode_and_validate(&doc.value) {
-            Ok(manifest) => out.push(Loaded {
-                manifest,
-                source: source.into(),
-                document: doc.index,
-            }),
-            Err(es) => errors.extend(es.into_iter().map(located)),
         }
     }
     // Cross-document checks: a spec against a stack given in the same input.
@@ -242,11 +288,12 @@ pub fn load(source: &str, text: &str) -> Result<Vec<Loaded>, ManifestErrors> {
         if let Some(stack) = stack {
             let doc = docs.iter().find(|d| d.index == l.document);
             for fe in validate::validate_against_stack(p, stack) {
-                let pos = doc.and_then(|d| d.position_of(&fe.path));
+                let path = prefixed(&l.path_prefix, &fe.path);
+                let pos = doc.and_then(|d| d.position_of(&path));
                 errors.push(ManifestError {
                     source: source.into(),
                     document: Some(l.document),
-                    path: fe.path,
+                    path,
                     line: pos.map(|p| p.line),
                     column: pos.map(|p| p.column),
                     message: fe.message,

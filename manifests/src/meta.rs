@@ -15,8 +15,8 @@ pub const API_VERSION: &str = "configbot.dev/v1alpha1";
 pub const DEFAULT_NAMESPACE: &str = "default";
 
 /// Standard object metadata. Server-owned fields (`uid`, `generation`,
-/// `resourceVersion`, `creationTimestamp`) are ignored on input and filled in by
-/// the control plane.
+/// `resourceVersion`, `creationTimestamp`, `managedFields`) are ignored on
+/// input and filled in by the control plane.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize, JsonSchema)]
 #[serde(rename_all = "camelCase", deny_unknown_fields)]
 pub struct ObjectMeta {
@@ -47,6 +47,29 @@ pub struct ObjectMeta {
     /// Set while a delete is in progress (accepted for Kubernetes compatibility).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub deletion_timestamp: Option<String>,
+    /// Which field manager set which fields (server-side apply); kept by the
+    /// control plane, ignored on input.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub managed_fields: Vec<ManagedFieldsEntry>,
+}
+
+/// One manager's fields, as Kubernetes records them.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(rename_all = "camelCase", deny_unknown_fields)]
+pub struct ManagedFieldsEntry {
+    /// The field manager (`kubectl`, `kubectl-client-side-apply`, `configbot`, ...).
+    pub manager: String,
+    /// `Apply` (server-side apply) or `Update` (any other write).
+    pub operation: String,
+    pub api_version: String,
+    /// When this manager's fields last changed (RFC 3339).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub time: Option<String>,
+    /// Always `FieldsV1`.
+    pub fields_type: String,
+    /// The fields as a `FieldsV1` tree (`{"f:spec": {"f:robot": {"f:model": {}}}}`).
+    #[serde(rename = "fieldsV1")]
+    pub fields_v1: serde_json::Value,
 }
 
 impl ObjectMeta {

@@ -2,12 +2,16 @@
 //! `kubectl` works, plus `/metrics`. Served on a Unix socket (0600) by
 //! default; on TCP only over TLS with a bearer token.
 
+pub mod apply;
 pub mod discovery;
+pub mod managed;
 pub mod openapi;
+pub mod patch;
 pub mod resources;
 pub mod selector;
 pub mod status;
 pub mod tls;
+pub mod watch;
 
 use std::os::unix::fs::PermissionsExt;
 use std::path::Path;

@@ -1,26 +1,26 @@
-//! Kubernetes-style resource handlers: list, get, create, replace, merge-patch,
-//! delete, the status subresource, watch streams and `Table` output.
+//! Kubernetes-style resource handlers: list, get, create, replace, patch (merge
+//! and JSON patch, see `patch.rs`), delete, dry runs of every write, the
+//! status subresource, watch streams and `Table` output.
 
 use std::collections::BTreeMap;
-use std::convert::Infallible;
 
 use axum::Json;
-use axum::body::{Body, Bytes};
+use axum::body::Bytes;
 use axum::extract::{Path, Query, State};
 use axum::http::{HeaderMap, StatusCode, header};
 use axum::response::{IntoResponse, Response};
 use configbot_manifests::{Kind, Manifest};
-use futures_util::StreamExt;
 use serde::Deserialize;
 use serde_json::{Value, json};
-use tokio_stream::wrappers::BroadcastStream;
 
+use super::managed;
+use super::patch::{Patch, PatchBodyError};
 use super::status::{ApiError, status_body};
 use super::{AppState, selector::Selector};
-use crate::store::{Change, ChangeType, key_of};
+use crate::store::{Mode, Preconditions, key_of, now_rfc3339};
 use crate::table;
 
-type ApiResult<T = Response> = Result<T, ApiError>;
+pub(super) type ApiResult<T = Response> = Result<T, ApiError>;
 
 #[derive(Debug, Default, Deserialize)]
 #[serde(rename_all = "camelCase")]
@@ -30,9 +30,34 @@ pub struct ListParams {
     watch: Option<String>,
     resource_version: Option<String>,
     dry_run: Option<String>,
+    pub(super) field_manager: Option<String>,
+    force: Option<String>,
 }
 
-fn kind_of(plural: &str) -> ApiResult<Kind> {
+impl ListParams {
+    /// The writer's field manager: `fieldManager`, else the User-Agent's
+    /// program (as the apiserver does), else `unknown`.
+    pub(super) fn manager(&self, headers: &HeaderMap) -> String {
+        self.field_manager
+            .clone()
+            .filter(|m| !m.is_empty())
+            .or_else(|| {
+                headers
+                    .get(header::USER_AGENT)
+                    .and_then(|v| v.to_str().ok())
+                    .and_then(|ua| ua.split('/').next())
+                    .filter(|p| !p.is_empty())
+                    .map(str::to_string)
+            })
+            .unwrap_or_else(|| "unknown".into())
+    }
+
+    pub(super) fn force(&self) -> bool {
+        matches!(self.force.as_deref(), Some("true" | "1"))
+    }
+}
+
+pub(super) fn kind_of(plural: &str) -> ApiResult<Kind> {
     Kind::from_plural(plural).ok_or_else(|| {
         ApiError::NotFound(format!(
             "the server could not find the requested resource {plural:?}"
@@ -47,7 +72,7 @@ fn wants_table(headers: &HeaderMap) -> bool {
         .is_some_and(|a| a.contains("as=Table"))
 }
 
-fn table_of(kind: Kind, objs: &[Value], rv: &str) -> Value {
+pub(super) fn table_of(kind: Kind, objs: &[Value], rv: &str) -> Value {
     let now = time::OffsetDateTime::now_utc();
     let mut cols = vec![json!({"name": "Name", "type": "string", "format": "name", "priority": 0})];
     cols.extend(kind.printer_columns().iter().map(|c| {
@@ -84,9 +109,9 @@ fn field_map(obj: &Value) -> BTreeMap<String, String> {
     .into()
 }
 
-struct Filter {
-    kind: Kind,
-    namespace: Option<String>,
+pub(super) struct Filter {
+    pub(super) kind: Kind,
+    pub(super) namespace: Option<String>,
     labels: Selector,
     fields: Selector,
 }
@@ -103,7 +128,7 @@ impl Filter {
             fields: parse(&p.field_selector)?,
         })
     }
-    fn admits(&self, kind: Kind, obj: &Value) -> bool {
+    pub(super) fn admits(&self, kind: Kind, obj: &Value) -> bool {
         kind == self.kind
             && self
                 .namespace
@@ -142,7 +167,7 @@ async fn list(
     let kind = kind_of(&plural)?;
     let filter = Filter::new(kind, ns.clone(), &p)?;
     if matches!(p.watch.as_deref(), Some("true" | "1")) {
-        return watch(s, filter, p.resource_version, wants_table(&headers));
+        return super::watch::watch(s, filter, p.resource_version, wants_table(&headers));
     }
     let (objs, rv) = s.store.list(kind, ns.as_deref())?;
     let objs: Vec<Value> = objs
@@ -157,74 +182,6 @@ async fn list(
         "metadata": {"resourceVersion": rv.to_string()}, "items": objs,
     }))
     .into_response())
-}
-
-/// A watch: the current objects (or the changes after `resourceVersion`), then
-/// live changes, as newline-delimited JSON `{"type", "object"}` events.
-fn watch(s: AppState, filter: Filter, from: Option<String>, as_table: bool) -> ApiResult {
-    let live = s.store.subscribe();
-    let from_rv = from
-        .as_deref()
-        .and_then(|v| v.parse::<i64>().ok())
-        .filter(|v| *v > 0);
-    let (initial, start_rv) = match from_rv {
-        Some(rv) => {
-            let changes = s
-                .store
-                .changes_since(rv)?
-                .ok_or_else(|| ApiError::Gone(format!("too old resource version: {rv}")))?;
-            let last = changes.last().map_or(rv, |c| c.resource_version);
-            (changes, last)
-        }
-        None => {
-            let (objs, rv) = s.store.list(filter.kind, filter.namespace.as_deref())?;
-            let changes = objs
-                .into_iter()
-                .map(|o| Change {
-                    resource_version: rv,
-                    kind: filter.kind,
-                    type_: ChangeType::Added,
-                    object: o,
-                })
-                .collect();
-            (changes, rv)
-        }
-    };
-    let kind = filter.kind;
-    let encode = move |c: &Change| -> Bytes {
-        let object = if as_table {
-            table_of(
-                kind,
-                std::slice::from_ref(&c.object),
-                &c.resource_version.to_string(),
-            )
-        } else {
-            c.object.clone()
-        };
-        let mut line = json!({"type": c.type_.as_str(), "object": object}).to_string();
-        line.push('\n');
-        Bytes::from(line)
-    };
-    let first: Vec<Result<Bytes, Infallible>> = initial
-        .iter()
-        .filter(|c| filter.admits(c.kind, &c.object))
-        .map(|c| Ok(encode(c)))
-        .collect();
-    let rest = BroadcastStream::new(live).filter_map(move |c| {
-        let out = match c {
-            Ok(c) if c.resource_version > start_rv && filter.admits(c.kind, &c.object) => {
-                Some(Ok(encode(&c)))
-            }
-            _ => None,
-        };
-        async move { out }
-    });
-    let stream = futures_util::stream::iter(first).chain(rest);
-    Response::builder()
-        .header(header::CONTENT_TYPE, "application/json")
-        .header(header::CACHE_CONTROL, "no-cache")
-        .body(Body::from_stream(stream))
-        .map_err(|e| ApiError::Internal(e.to_string()))
 }
 
 pub async fn get(
@@ -269,8 +226,11 @@ fn parse_body(headers: &HeaderMap, body: &Bytes) -> ApiResult<Value> {
 }
 
 /// Decode and validate an object for `kind` at `ns`/`name` (when the path names one),
-/// returning its normalised JSON.
-fn admit(
+/// returning it as the client wrote it. Defaults are not written into the
+/// stored object (readers decode it, which fills them in): a default inside a
+/// list item would make every `kubectl apply` of an unchanged file compute a
+/// non-empty patch (a merge patch replaces whole lists) and say "configured".
+pub(super) fn admit(
     s: &AppState,
     kind: Kind,
     ns: &str,
@@ -305,6 +265,10 @@ fn admit(
         )));
     }
     let status = obj.as_object_mut().and_then(|o| o.remove("status"));
+    // Server-owned: the handler records the write's own managedFields.
+    if let Some(m) = obj["metadata"].as_object_mut() {
+        m.remove("managedFields");
+    }
     let manifest = configbot_manifests::decode_and_validate(&obj)
         .map_err(|c| ApiError::invalid(kind.name(), &body_name, c))?;
     if let Manifest::PerformanceSpec(p) = &manifest
@@ -316,15 +280,25 @@ fn admit(
             return Err(ApiError::invalid(kind.name(), &body_name, errs));
         }
     }
-    let mut out = manifest.to_json();
     if let Some(st) = status {
-        out["status"] = st;
+        obj["status"] = st;
     }
-    Ok(out)
+    Ok(obj)
 }
 
-fn dry(p: &ListParams) -> bool {
-    p.dry_run.as_deref().is_some_and(|d| d == "All")
+/// `dryRun`: absent (store), or `All` (check everything, store nothing).
+fn mode_of(dry_run: Option<&str>) -> ApiResult<Mode> {
+    match dry_run {
+        None | Some("") => Ok(Mode::Commit),
+        Some("All") => Ok(Mode::DryRun),
+        Some(other) => Err(ApiError::BadRequest(format!(
+            "dryRun: unsupported value {other:?}; the only value is \"All\""
+        ))),
+    }
+}
+
+pub(super) fn mode(p: &ListParams) -> ApiResult<Mode> {
+    mode_of(p.dry_run.as_deref())
 }
 
 pub async fn create(
@@ -335,11 +309,13 @@ pub async fn create(
     body: Bytes,
 ) -> ApiResult {
     let kind = kind_of(&plural)?;
-    let obj = admit(&s, kind, &ns, None, parse_body(&headers, &body)?)?;
-    if dry(&p) {
-        return Ok((StatusCode::CREATED, Json(obj)).into_response());
+    let mode = mode(&p)?;
+    let mut obj = admit(&s, kind, &ns, None, parse_body(&headers, &body)?)?;
+    managed::record_update(None, &mut obj, &p.manager(&headers), &now_rfc3339());
+    let (stored, _) = s.store.put_with(kind, obj, true, mode)?;
+    if mode == Mode::DryRun {
+        return Ok((StatusCode::CREATED, Json(stored)).into_response());
     }
-    let (stored, _) = s.store.put(kind, obj, true)?;
     let _ = s.store.record_event(
         &stored,
         "Normal",
@@ -357,13 +333,13 @@ pub async fn replace(
     body: Bytes,
 ) -> ApiResult {
     let kind = kind_of(&plural)?;
-    let obj = admit(&s, kind, &ns, Some(&name), parse_body(&headers, &body)?)?;
-    if dry(&p) {
-        return Ok(Json(obj).into_response());
-    }
-    let existed = s.store.get(kind, &ns, &name)?.is_some();
-    let (stored, changed) = s.store.put(kind, obj, false)?;
-    if changed {
+    let mode = mode(&p)?;
+    let mut obj = admit(&s, kind, &ns, Some(&name), parse_body(&headers, &body)?)?;
+    let old = s.store.get(kind, &ns, &name)?;
+    let existed = old.is_some();
+    managed::record_update(old.as_ref(), &mut obj, &p.manager(&headers), &now_rfc3339());
+    let (stored, changed) = s.store.put_with(kind, obj, false, mode)?;
+    if changed && mode == Mode::Commit {
         let reason = if existed { "Updated" } else { "Created" };
         let _ = s.store.record_event(
             &stored,
@@ -383,41 +359,68 @@ pub async fn replace(
         .into_response())
 }
 
-/// RFC 7386 JSON merge patch.
-pub fn merge_patch(target: &mut Value, patch: &Value) {
-    match patch {
-        Value::Object(p) => {
-            if !target.is_object() {
-                *target = json!({});
-            }
-            if let Value::Object(t) = target {
-                for (k, v) in p {
-                    if v.is_null() {
-                        t.remove(k);
-                    } else {
-                        merge_patch(t.entry(k.clone()).or_insert(Value::Null), v);
-                    }
-                }
-            }
-        }
-        other => *target = other.clone(),
-    }
-}
+/// How often a patch is read and applied again when another write landed
+/// between its read and its write (as the apiserver does for unpinned patches).
+const PATCH_ATTEMPTS: usize = 5;
 
-fn patch_body(headers: &HeaderMap, body: &Bytes) -> ApiResult<Value> {
+pub(super) fn parse_patch(headers: &HeaderMap, body: &Bytes) -> ApiResult<Patch> {
     let ct = headers
         .get(header::CONTENT_TYPE)
         .and_then(|v| v.to_str().ok())
         .unwrap_or("");
-    if !ct.starts_with("application/merge-patch+json") {
-        return Err(ApiError::UnsupportedMediaType(format!(
-            "patch type {ct:?} is not supported; use application/merge-patch+json (kubectl: --type=merge)"
-        )));
-    }
-    serde_json::from_slice(body)
-        .map_err(|e| ApiError::BadRequest(format!("invalid JSON patch body: {e}")))
+    Patch::parse(ct, body).map_err(|e| match e {
+        PatchBodyError::UnsupportedType(_) => ApiError::UnsupportedMediaType(e.to_string()),
+        PatchBodyError::Invalid(_) => ApiError::BadRequest(e.to_string()),
+    })
 }
 
+/// Read the object, apply `patch` and hand the result to `write` with the
+/// resourceVersion it must still have. A patch that sets
+/// `metadata.resourceVersion` itself pins it: a conflict is then the
+/// client's; otherwise a conflict means "read again", up to [`PATCH_ATTEMPTS`].
+fn patch_stored(
+    s: &AppState,
+    kind: Kind,
+    ns: &str,
+    name: &str,
+    patch: &Patch,
+    write: impl Fn(&Value, Value) -> ApiResult<(Value, bool)>,
+) -> ApiResult<(Value, bool)> {
+    let mut attempt = 0;
+    loop {
+        attempt += 1;
+        let current = s.store.get(kind, ns, name)?.ok_or_else(|| {
+            ApiError::NotFound(format!(
+                "{} {name:?} not found in namespace {ns:?}",
+                kind.plural()
+            ))
+        })?;
+        let mut patched = patch.apply(&current).map_err(|e| {
+            ApiError::invalid(
+                kind.name(),
+                name,
+                vec![configbot_manifests::FieldError {
+                    path: e.field(),
+                    message: e.cause(),
+                }],
+            )
+        })?;
+        let current_rv = &current["metadata"]["resourceVersion"];
+        let pinned = match &patched["metadata"]["resourceVersion"] {
+            Value::Null => false,
+            rv => rv != current_rv,
+        };
+        if !pinned {
+            patched["metadata"]["resourceVersion"] = current_rv.clone();
+        }
+        match write(&current, patched) {
+            Err(ApiError::Conflict(_)) if !pinned && attempt < PATCH_ATTEMPTS => continue,
+            other => return other,
+        }
+    }
+}
+
+/// PATCH of the main resource: merge patch or JSON patch; status is ignored.
 pub async fn patch(
     State(s): State<AppState>,
     Path((ns, plural, name)): Path<(String, String, String)>,
@@ -426,29 +429,20 @@ pub async fn patch(
     body: Bytes,
 ) -> ApiResult {
     let kind = kind_of(&plural)?;
-    let patch = patch_body(&headers, &body)?;
-    let mut obj = s
-        .store
-        .get(kind, &ns, &name)?
-        .ok_or_else(|| ApiError::NotFound(format!("{} {name:?} not found", kind.plural())))?;
-    merge_patch(&mut obj, &patch);
-    let given_rv = patch["metadata"]["resourceVersion"]
-        .as_str()
-        .map(str::to_string);
-    let mut obj = admit(&s, kind, &ns, Some(&name), obj)?;
-    match given_rv {
-        Some(rv) => obj["metadata"]["resourceVersion"] = rv.into(),
-        None => {
-            if let Some(m) = obj["metadata"].as_object_mut() {
-                m.remove("resourceVersion");
-            }
-        }
+    let mode = mode(&p)?;
+    if super::apply::is_apply(&headers) {
+        return super::apply::server_side_apply(&s, kind, &ns, &name, &p, mode, &body);
     }
-    if dry(&p) {
-        return Ok(Json(obj).into_response());
-    }
-    let (stored, changed) = s.store.put(kind, obj, false)?;
-    if changed {
+    let patch = parse_patch(&headers, &body)?;
+    let manager = p.manager(&headers);
+    let (stored, changed) = patch_stored(&s, kind, &ns, &name, &patch, |current, patched| {
+        let rv = patched["metadata"]["resourceVersion"].clone();
+        let mut obj = admit(&s, kind, &ns, Some(&name), patched)?;
+        obj["metadata"]["resourceVersion"] = rv;
+        managed::record_update(Some(current), &mut obj, &manager, &now_rfc3339());
+        Ok(s.store.put_with(kind, obj, false, mode)?)
+    })?;
+    if changed && mode == Mode::Commit {
         let _ = s.store.record_event(
             &stored,
             "Normal",
@@ -459,23 +453,69 @@ pub async fn patch(
     Ok(Json(stored).into_response())
 }
 
+/// The parts of a `DeleteOptions` body that the store honours.
+#[derive(Debug, Default, Deserialize)]
+#[serde(rename_all = "camelCase")]
+struct DeleteOptions {
+    #[serde(default)]
+    dry_run: Vec<String>,
+    #[serde(default)]
+    preconditions: Option<DeletePreconditions>,
+}
+
+#[derive(Debug, Default, Deserialize)]
+#[serde(rename_all = "camelCase")]
+struct DeletePreconditions {
+    uid: Option<String>,
+    resource_version: Option<String>,
+}
+
+/// kubectl sends `dryRun` in a `DeleteOptions` body; other clients in the query.
 pub async fn delete(
     State(s): State<AppState>,
     Path((ns, plural, name)): Path<(String, String, String)>,
+    Query(p): Query<ListParams>,
+    body: Bytes,
 ) -> ApiResult {
     let kind = kind_of(&plural)?;
-    let obj = s.store.delete(kind, &ns, &name)?;
-    let _ = s.store.record_event(
-        &obj,
-        "Normal",
-        "Deleted",
-        &format!("{} deleted", kind.name()),
-    );
+    let opts: DeleteOptions = if body.iter().all(u8::is_ascii_whitespace) {
+        DeleteOptions::default()
+    } else {
+        serde_path_to_error::deserialize(&mut serde_json::Deserializer::from_slice(&body)).map_err(
+            |e| {
+                ApiError::BadRequest(format!(
+                    "invalid DeleteOptions body at {}: {}",
+                    e.path(),
+                    e.inner()
+                ))
+            },
+        )?
+    };
+    let mut mode = mode(&p)?;
+    for d in &opts.dry_run {
+        if mode_of(Some(d))? == Mode::DryRun {
+            mode = Mode::DryRun;
+        }
+    }
+    let pre = opts.preconditions.unwrap_or_default();
+    let pre = Preconditions {
+        uid: pre.uid,
+        resource_version: pre.resource_version,
+    };
+    let obj = s.store.delete_with(kind, &ns, &name, &pre, mode)?;
+    if mode == Mode::Commit {
+        let _ = s.store.record_event(
+            &obj,
+            "Normal",
+            "Deleted",
+            &format!("{} deleted", kind.name()),
+        );
+    }
     let details = json!({"name": name, "kind": kind.plural(), "uid": obj["metadata"]["uid"]});
     Ok(Json(status_body(StatusCode::OK, "", "", details)).into_response())
 }
 
-fn validate_status(kind: Kind, status: &Value) -> ApiResult<()> {
+pub(super) fn validate_status(kind: Kind, status: &Value) -> ApiResult<()> {
     let r = match kind {
         Kind::RobotStack => {
             serde_path_to_error::deserialize::<_, configbot_manifests::RobotStackStatus>(status)
@@ -504,40 +544,41 @@ fn validate_status(kind: Kind, status: &Value) -> ApiResult<()> {
 pub async fn put_status(
     State(s): State<AppState>,
     Path((ns, plural, name)): Path<(String, String, String)>,
+    Query(p): Query<ListParams>,
     headers: HeaderMap,
     body: Bytes,
 ) -> ApiResult {
     let kind = kind_of(&plural)?;
+    let mode = mode(&p)?;
     let obj = parse_body(&headers, &body)?;
     let status = obj.get("status").cloned().unwrap_or(Value::Null);
     validate_status(kind, &status)?;
     let rv = obj["metadata"]["resourceVersion"].as_str();
-    let (stored, _) = s.store.put_status(kind, &ns, &name, status, rv)?;
+    let (stored, _) = s
+        .store
+        .put_status_with(kind, &ns, &name, status, rv, mode)?;
     Ok(Json(stored).into_response())
 }
 
+/// PATCH of the status subresource: the patch applies to the whole object,
+/// and only the resulting status is kept.
 pub async fn patch_status(
     State(s): State<AppState>,
     Path((ns, plural, name)): Path<(String, String, String)>,
+    Query(p): Query<ListParams>,
     headers: HeaderMap,
     body: Bytes,
 ) -> ApiResult {
     let kind = kind_of(&plural)?;
-    let patch = patch_body(&headers, &body)?;
-    let obj = s
-        .store
-        .get(kind, &ns, &name)?
-        .ok_or_else(|| ApiError::NotFound(format!("{} {name:?} not found", kind.plural())))?;
-    let mut status = obj.get("status").cloned().unwrap_or(json!({}));
-    merge_patch(&mut status, &patch["status"]);
-    validate_status(kind, &status)?;
-    let (stored, _) = s.store.put_status(
-        kind,
-        &ns,
-        &name,
-        status,
-        patch["metadata"]["resourceVersion"].as_str(),
-    )?;
+    let mode = mode(&p)?;
+    let patch = parse_patch(&headers, &body)?;
+    let (stored, _) = patch_stored(&s, kind, &ns, &name, &patch, |_, patched| {
+        let status = patched.get("status").cloned().unwrap_or(json!({}));
+        validate_status(kind, &status)?;
+        let rv = patched["metadata"]["resourceVersion"].as_str();
+        Ok(s.store
+            .put_status_with(kind, &ns, &name, status, rv, mode)?)
+    })?;
     Ok(Json(stored).into_response())
 }
 
@@ -595,19 +636,4 @@ pub async fn namespaces() -> Json<Value> {
             {"apiVersion": "v1", "kind": "Namespace", "metadata": {"name": "default"}, "status": {"phase": "Active"}}
         ]}),
     )
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn merge_patch_follows_rfc7386() {
-        let mut t = json!({"a": "b", "c": {"d": "e", "f": "g"}});
-        merge_patch(&mut t, &json!({"a": "z", "c": {"f": null}}));
-        assert_eq!(t, json!({"a": "z", "c": {"d": "e"}}));
-        let mut t = json!({"a": [1, 2]});
-        merge_patch(&mut t, &json!({"a": [3]}));
-        assert_eq!(t, json!({"a": [3]}));
-    }
 }

@@ -26,6 +26,11 @@ pub enum ApiError {
     AlreadyExists(String),
     #[error("{0}")]
     Conflict(String),
+    #[error("{}", apply_conflict_message(.conflicts))]
+    ApplyConflict {
+        /// `(manager, field)` pairs, e.g. `("kubectl", ".spec.robot.model")`.
+        conflicts: Vec<(String, String)>,
+    },
     #[error("{0}")]
     Gone(String),
     #[error("{0}")]
@@ -43,7 +48,9 @@ impl ApiError {
             ApiError::Invalid { .. } => (StatusCode::UNPROCESSABLE_ENTITY, "Invalid"),
             ApiError::NotFound(_) => (StatusCode::NOT_FOUND, "NotFound"),
             ApiError::AlreadyExists(_) => (StatusCode::CONFLICT, "AlreadyExists"),
-            ApiError::Conflict(_) => (StatusCode::CONFLICT, "Conflict"),
+            ApiError::Conflict(_) | ApiError::ApplyConflict { .. } => {
+                (StatusCode::CONFLICT, "Conflict")
+            }
             ApiError::Gone(_) => (StatusCode::GONE, "Expired"),
             ApiError::UnsupportedMediaType(_) => {
                 (StatusCode::UNSUPPORTED_MEDIA_TYPE, "UnsupportedMediaType")
@@ -77,6 +84,20 @@ impl ApiError {
     }
 }
 
+/// "Apply failed with 2 conflicts: conflict with "a": .spec.x; ...", as the apiserver words it.
+fn apply_conflict_message(conflicts: &[(String, String)]) -> String {
+    let list: Vec<String> = conflicts
+        .iter()
+        .map(|(m, f)| format!("conflict with {m:?}: {f}"))
+        .collect();
+    let n = conflicts.len();
+    format!(
+        "Apply failed with {n} conflict{}: {}",
+        if n == 1 { "" } else { "s" },
+        list.join("; ")
+    )
+}
+
 /// A Kubernetes `Status` body.
 pub fn status_body(code: StatusCode, reason: &str, message: &str, details: Value) -> Value {
     json!({
@@ -96,6 +117,9 @@ impl IntoResponse for ApiError {
                 "name": name, "kind": kind,
                 "causes": causes.iter().map(|c| json!({"reason": "FieldValueInvalid", "field": c.path, "message": c.message})).collect::<Vec<_>>(),
             }),
+            ApiError::ApplyConflict { conflicts } => json!({
+                "causes": conflicts.iter().map(|(m, f)| json!({"reason": "FieldManagerConflict", "message": format!("conflict with {m:?}"), "field": f})).collect::<Vec<_>>(),
+            }),
             _ => json!({}),
         };
         if let ApiError::Internal(detail) = &self {
@@ -114,7 +138,9 @@ impl From<StoreError> for ApiError {
         match e {
             StoreError::NotFound { .. } => ApiError::NotFound(e.to_string()),
             StoreError::AlreadyExists { .. } => ApiError::AlreadyExists(e.to_string()),
-            StoreError::Conflict { .. } => ApiError::Conflict(e.to_string()),
+            StoreError::Conflict { .. } | StoreError::Precondition { .. } => {
+                ApiError::Conflict(e.to_string())
+            }
             StoreError::Db { .. } | StoreError::Corrupt(_) => ApiError::Internal(e.to_string()),
         }
     }

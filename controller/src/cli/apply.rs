@@ -48,8 +48,9 @@ fn collect(path: &Path, out: &mut Vec<std::path::PathBuf>) -> std::io::Result<()
     Ok(())
 }
 
-/// Load and validate every manifest named by `-f`; all errors at once.
-pub fn load_all(files: &[String]) -> Result<Vec<Loaded>, ManifestErrors> {
+/// Load and validate every manifest named by `-f`; all errors at once. An
+/// input with no objects at all is an error ("no objects passed to `verb`").
+pub fn load_all(files: &[String], verb: &str) -> Result<Vec<Loaded>, ManifestErrors> {
     let mut loaded = Vec::new();
     let mut errors = Vec::new();
     let io_error = |source: &str, message: String| ManifestError {
@@ -128,6 +129,12 @@ pub fn load_all(files: &[String]) -> Result<Vec<Loaded>, ManifestErrors> {
             });
         }
     }
+    if errors.is_empty() && loaded.is_empty() {
+        errors.push(io_error(
+            &files.join(", "),
+            format!("no objects passed to {verb}"),
+        ));
+    }
     if errors.is_empty() {
         Ok(loaded)
     } else {
@@ -161,7 +168,12 @@ pub async fn apply_one(
     dry_run: bool,
 ) -> Result<Applied, ClientError> {
     let (ns, name) = crate::store::key_of(obj);
-    let q = if dry_run { "?dryRun=All" } else { "" };
+    // The field manager its writes are recorded under in managedFields.
+    let q = if dry_run {
+        "?fieldManager=configbot&dryRun=All"
+    } else {
+        "?fieldManager=configbot"
+    };
     for _attempt in 0..3 {
         match client.get(&path(kind, Some(&ns), Some(&name))).await {
             Err(ClientError::Api { code: 404, .. }) => {
@@ -207,7 +219,7 @@ pub async fn apply_one(
 }
 
 pub async fn run(client: &Client, a: &ApplyArgs) -> anyhow::Result<ExitCode> {
-    let mut loaded = match load_all(&a.files) {
+    let mut loaded = match load_all(&a.files, "apply") {
         Ok(l) => l,
         Err(e) => {
             eprintln!("{e}");
@@ -223,7 +235,7 @@ pub async fn run(client: &Client, a: &ApplyArgs) -> anyhow::Result<ExitCode> {
         let kind = l.manifest.kind();
         let m = l.manifest.metadata();
         applied.insert((kind, m.namespace().to_string(), m.name.clone()));
-        let mut obj = l.manifest.to_json();
+        let mut obj = l.value.clone();
         obj["metadata"]["namespace"] = m.namespace().into();
         match apply_one(client, &obj, kind, a.dry_run).await {
             Ok(r) => println!(

@@ -1,20 +1,13 @@
-//! `configbot get`, `describe` and `delete`: kubectl-like views of objects.
+//! `configbot get` and `describe`: kubectl-like views of objects.
 
 use std::process::ExitCode;
 
+use super::output::{self, Output};
 use crate::client::{Client, path};
 use crate::table;
-use clap::{Args, ValueEnum};
+use clap::Args;
 use configbot_manifests::Kind;
-use hyper::Method;
 use serde_json::Value;
-
-#[derive(Debug, Clone, Copy, ValueEnum)]
-pub enum Output {
-    Wide,
-    Yaml,
-    Json,
-}
 
 #[derive(Debug, Args)]
 pub struct GetArgs {
@@ -31,7 +24,9 @@ pub struct GetArgs {
     /// Label selector, e.g. robot=spot.
     #[arg(short = 'l', long)]
     selector: Option<String>,
-    #[arg(short = 'o', long, value_enum)]
+    /// Output format: wide, yaml, json, name, jsonpath=TEMPLATE or
+    /// custom-columns=HEADER:PATH,... (kubectl's JSONPath, e.g. {.items[*].metadata.name}).
+    #[arg(short = 'o', long, value_parser = output::parse_output)]
     output: Option<Output>,
     /// Keep watching and print every change.
     #[arg(short = 'w', long)]
@@ -46,39 +41,52 @@ pub struct DescribeArgs {
     namespace: String,
 }
 
-#[derive(Debug, Args)]
-pub struct DeleteArgs {
-    kind: String,
-    name: String,
-    #[arg(short = 'n', long, default_value = "default")]
-    namespace: String,
-}
-
 pub fn kind(word: &str) -> anyhow::Result<Kind> {
     Kind::lookup(word).ok_or_else(|| {
         anyhow::anyhow!("unknown kind {word:?}; use robotstack (rs), performancespec (pspec), configprofile (cprof) or trials")
     })
 }
 
+/// Print objects in the `-o` format. `as_list`: the objects are the answer
+/// to a list (json, yaml and jsonpath see one `List`), not one object each.
 fn print_objects(
     kind: Kind,
     objs: &[Value],
-    output: Option<Output>,
+    output: Option<&Output>,
     with_ns: bool,
     header: bool,
+    as_list: bool,
 ) -> anyhow::Result<()> {
+    let list = as_list.then(|| output::list_object(objs));
+    let each: Vec<&Value> = match &list {
+        Some(l) => vec![l],
+        None => objs.iter().collect(),
+    };
     match output {
         Some(Output::Json) => {
-            for o in objs {
+            for o in each {
                 println!("{}", serde_json::to_string_pretty(o)?);
             }
         }
         Some(Output::Yaml) => {
-            for o in objs {
-                print!("---\n{}", serde_saphyr::to_string(o)?);
+            for o in each {
+                print!("{}", serde_saphyr::to_string(o)?);
             }
         }
-        _ => {
+        Some(Output::JsonPath(t)) => {
+            for o in each {
+                print!("{}", t.render(o));
+            }
+        }
+        Some(Output::Name) => {
+            for o in objs {
+                println!("{}", output::name_of(kind, o));
+            }
+        }
+        Some(Output::CustomColumns(cols)) => {
+            print!("{}", output::custom_columns(cols, objs, header));
+        }
+        Some(Output::Wide) | None => {
             let wide = matches!(output, Some(Output::Wide));
             let now = time::OffsetDateTime::now_utc();
             let rows: Vec<Vec<String>> = objs
@@ -104,7 +112,10 @@ pub async fn get(client: &Client, a: &GetArgs) -> anyhow::Result<ExitCode> {
     let ns = (!a.all_namespaces).then_some(a.namespace.as_str());
     let mut query = Vec::new();
     if let Some(sel) = &a.selector {
-        query.push(format!("labelSelector={sel}"));
+        query.push(format!(
+            "labelSelector={}",
+            super::delete::encode_query(sel)
+        ));
     }
     if let Some(n) = &a.name {
         query.push(format!("fieldSelector=metadata.name%3D{n}"));
@@ -123,32 +134,91 @@ pub async fn get(client: &Client, a: &GetArgs) -> anyhow::Result<ExitCode> {
             a.namespace
         );
     }
-    if items.is_empty() && !a.watch {
-        eprintln!("No {} found.", kind.plural());
+    let tabular = matches!(
+        a.output,
+        None | Some(Output::Wide | Output::CustomColumns(_))
+    );
+    if items.is_empty() && tabular {
+        if !a.watch {
+            eprintln!("No {} found.", kind.plural());
+        }
     } else {
-        print_objects(kind, &items, a.output, a.all_namespaces, true)?;
+        let as_list = a.name.is_none();
+        print_objects(
+            kind,
+            &items,
+            a.output.as_ref(),
+            a.all_namespaces,
+            true,
+            as_list,
+        )?;
     }
     if a.watch {
-        let rv = list["metadata"]["resourceVersion"]
+        let mut rv = list["metadata"]["resourceVersion"]
             .as_str()
             .unwrap_or("0")
             .to_string();
         let sep = if q.is_empty() { "?" } else { "&" };
-        let wpath = format!(
-            "{}{q}{sep}watch=true&resourceVersion={rv}",
-            path(kind, ns, None)
-        );
-        let output = a.output;
+        let output = a.output.as_ref();
         let all = a.all_namespaces;
-        client
-            .watch(&wpath, |ev| {
-                let obj = ev["object"].clone();
-                let _ = print_objects(kind, std::slice::from_ref(&obj), output, all, false);
-                true
+        loop {
+            let wpath = format!(
+                "{}{q}{sep}watch=true&resourceVersion={rv}",
+                path(kind, ns, None)
+            );
+            let expired = watch_until_error(client, &wpath, |obj| {
+                let _ = print_objects(kind, std::slice::from_ref(obj), output, all, false, false);
             })
             .await?;
+            if !expired {
+                break;
+            }
+            // Fell behind: list again (printing the current objects) and watch from there.
+            let list = client.get(&format!("{}{q}", path(kind, ns, None))).await?;
+            let items = list["items"].as_array().cloned().unwrap_or_default();
+            print_objects(kind, &items, output, all, false, false)?;
+            rv = list["metadata"]["resourceVersion"]
+                .as_str()
+                .unwrap_or("0")
+                .to_string();
+        }
     }
     Ok(ExitCode::SUCCESS)
+}
+
+/// Hand each watched object to `on_object` until the stream ends (false) or
+/// the server says the watch expired (true: the caller lists again). Any
+/// other ERROR event is an error naming the server's message.
+async fn watch_until_error(
+    client: &Client,
+    wpath: &str,
+    mut on_object: impl FnMut(&Value),
+) -> anyhow::Result<bool> {
+    let mut error = None;
+    client
+        .watch(wpath, |ev| {
+            if ev["type"] == "ERROR" {
+                error = Some(ev["object"].clone());
+                return false;
+            }
+            on_object(&ev["object"]);
+            true
+        })
+        .await?;
+    match error {
+        None => Ok(false),
+        Some(st) if st["code"] == 410 => {
+            eprintln!(
+                "configbot: {}",
+                st["message"].as_str().unwrap_or("the watch expired")
+            );
+            Ok(true)
+        }
+        Some(st) => anyhow::bail!(
+            "watch failed: {}",
+            st["message"].as_str().unwrap_or("unknown error")
+        ),
+    }
 }
 
 /// `configbot get trials SPEC [-w]`: the tuning run of one PerformanceSpec;
@@ -168,18 +238,26 @@ async fn trials(client: &Client, a: &GetArgs) -> anyhow::Result<ExitCode> {
     }
     print!("{}", trials_view(&obj));
     if a.watch {
-        let rv = obj["metadata"]["resourceVersion"].as_str().unwrap_or("0");
-        let wpath = format!(
-            "{}?fieldSelector=metadata.name%3D{name}&watch=true&resourceVersion={rv}",
-            path(kind, Some(&a.namespace), None)
-        );
-        client
-            .watch(&wpath, |ev| {
+        let mut obj = obj;
+        loop {
+            let rv = obj["metadata"]["resourceVersion"].as_str().unwrap_or("0");
+            let wpath = format!(
+                "{}?fieldSelector=metadata.name%3D{name}&watch=true&resourceVersion={rv}",
+                path(kind, Some(&a.namespace), None)
+            );
+            let expired = watch_until_error(client, &wpath, |o| {
                 // Clear the screen and redraw (ANSI), like `watch`.
-                print!("\x1b[2J\x1b[H{}", trials_view(&ev["object"]));
-                true
+                print!("\x1b[2J\x1b[H{}", trials_view(o));
             })
             .await?;
+            if !expired {
+                break;
+            }
+            obj = client
+                .get(&path(kind, Some(&a.namespace), Some(name)))
+                .await?;
+            print!("\x1b[2J\x1b[H{}", trials_view(&obj));
+        }
     }
     Ok(ExitCode::SUCCESS)
 }
@@ -296,24 +374,5 @@ pub async fn describe(client: &Client, a: &DescribeArgs) -> anyhow::Result<ExitC
             s(&e["message"])
         );
     }
-    Ok(ExitCode::SUCCESS)
-}
-
-pub async fn delete(client: &Client, a: &DeleteArgs) -> anyhow::Result<ExitCode> {
-    let kind = kind(&a.kind)?;
-    client
-        .send(
-            Method::DELETE,
-            &path(kind, Some(&a.namespace), Some(&a.name)),
-            None,
-            "application/json",
-        )
-        .await?;
-    println!(
-        "{}.{}/{} deleted",
-        kind.singular(),
-        configbot_manifests::GROUP,
-        a.name
-    );
     Ok(ExitCode::SUCCESS)
 }

@@ -2,8 +2,10 @@
 
 mod apply;
 mod bench;
+mod delete;
 mod demo;
 mod get;
+mod output;
 mod robot;
 
 use std::path::PathBuf;
@@ -58,8 +60,11 @@ enum Command {
     Get(get::GetArgs),
     /// Show an object's spec summary, conditions and recent events.
     Describe(get::DescribeArgs),
-    /// Delete an object.
-    Delete(get::DeleteArgs),
+    /// Delete objects: by name, by label selector (-l) or as named in files (-f).
+    #[command(
+        after_help = "Examples:\n  configbot delete pspec basic-nav\n  configbot delete rs -l fleet=lab\n  configbot delete -f manifests/examples/basic-nav.yaml --dry-run"
+    )]
+    Delete(delete::DeleteArgs),
     /// Check manifests offline (no server needed); exits 1 on any error.
     Validate(ValidateArgs),
     /// Run an example stack on this machine, show the default config failing,
@@ -77,6 +82,11 @@ enum Command {
         after_help = "The control plane drives it over its API (Unix socket, or TCP with --token).\n\nExamples:\n  configbot agent --stack stack.yaml                  # supervise a RobotStack\n  configbot agent --ros-master-uri http://localhost:11311/ --tcp 0.0.0.0:9443 --token \"$TOKEN\""
     )]
     Agent(configbot_agent::cli::AgentArgs),
+    /// Print a shell completion script (bash, zsh, fish, elvish or powershell).
+    #[command(
+        after_help = "Examples:\n  source <(configbot completion bash)\n  configbot completion zsh > \"${fpath[1]}/_configbot\"\n  configbot completion fish > ~/.config/fish/completions/configbot.fish"
+    )]
+    Completion { shell: clap_complete::Shell },
     /// Run a simulated ROS 1 node (periodic publishers, CPU-costed callbacks);
     /// the example stacks are made of these.
     Simnode(configbot_simnode::SimnodeArgs),
@@ -213,8 +223,8 @@ async fn run(cli: Cli) -> anyhow::Result<std::process::ExitCode> {
         Command::Apply(a) => apply::run(&client(&cli)?, a).await,
         Command::Get(a) => get::get(&client(&cli)?, a).await,
         Command::Describe(a) => get::describe(&client(&cli)?, a).await,
-        Command::Delete(a) => get::delete(&client(&cli)?, a).await,
-        Command::Validate(a) => match apply::load_all(&a.files) {
+        Command::Delete(a) => delete::run(&client(&cli)?, a).await,
+        Command::Validate(a) => match apply::load_all(&a.files, "validate") {
             Ok(loaded) => {
                 for l in &loaded {
                     println!(
@@ -232,6 +242,20 @@ async fn run(cli: Cli) -> anyhow::Result<std::process::ExitCode> {
                 Ok(ExitCode::FAILURE)
             }
         },
+        Command::Completion { shell } => {
+            use clap::CommandFactory;
+            use std::io::Write;
+            // Into a buffer first: clap_complete panics when its writer fails
+            // (e.g. `configbot completion bash | head`).
+            let mut script = Vec::new();
+            clap_complete::generate(*shell, &mut Cli::command(), "configbot", &mut script);
+            match std::io::stdout().write_all(&script) {
+                Err(e) if e.kind() != std::io::ErrorKind::BrokenPipe => {
+                    Err(anyhow::anyhow!("writing the completion script: {e}"))
+                }
+                _ => Ok(ExitCode::SUCCESS),
+            }
+        }
         Command::Demo(a) => demo::run(a).await,
         Command::Bench(a) => bench::run(a).await,
         Command::Simnode(a) => {

@@ -228,7 +228,7 @@ async fn sleep_until(t: Option<Instant>) {
 
 fn error_label(e: &StoreError) -> &'static str {
     match e {
-        StoreError::Conflict { .. } => "conflict",
+        StoreError::Conflict { .. } | StoreError::Precondition { .. } => "conflict",
         StoreError::NotFound { .. } => "not_found",
         StoreError::AlreadyExists { .. } => "exists",
         StoreError::Db { .. } => "db",
