@@ -29,7 +29,7 @@ struct Bench {
 }
 
 impl Bench {
-    fn start(out: &Path, log: &Path) -> Bench {
+    fn start(out: &Path, log: &Path, extra: &[&str]) -> Bench {
         let cpu = configbot_cgroups::Layout::detect()
             .ok()
             .and_then(|l| l.v1_cpu);
@@ -43,6 +43,7 @@ impl Bench {
             .args(["bench", "--quick", "--out"])
             .arg(out)
             .args(["--subtree-cpu-weight", &common::ROBOT_WEIGHT.to_string()])
+            .args(extra)
             .env("ROS_HOSTNAME", "localhost")
             .stdout(std::fs::File::create(log).expect("log"))
             .stderr(Stdio::inherit())
@@ -125,6 +126,33 @@ fn secs(v: &Value, what: &str) -> f64 {
         .unwrap_or_else(|| panic!("{what}: not a number: {v}"));
     assert!(x.is_finite() && x >= 0.0, "{what} = {x}");
     x
+}
+
+/// Waits for the bench to exit (at most `limit`) and checks it succeeded
+/// and left no cgroup behind; returns what it printed.
+fn finish(bench: &mut Bench, log: &Path, limit: Duration) -> String {
+    let root = bench.root();
+    let deadline = Instant::now() + limit;
+    let status = loop {
+        if let Some(s) = bench.child.try_wait().expect("wait") {
+            break s;
+        }
+        assert!(
+            Instant::now() < deadline,
+            "bench --quick still running after {} s:\n{}",
+            limit.as_secs(),
+            std::fs::read_to_string(log).unwrap_or_default()
+        );
+        std::thread::sleep(Duration::from_millis(200));
+    };
+    let printed = std::fs::read_to_string(log).unwrap_or_default();
+    assert!(
+        status.success(),
+        "bench --quick failed ({status}):\n{printed}"
+    );
+    let left = common::cgroup_dirs(&root);
+    assert!(left.is_empty(), "left behind: {left:?}");
+    printed
 }
 
 fn check_results(results: &[Value]) {
@@ -264,28 +292,9 @@ fn quick_bench_writes_every_table_and_plot() {
     let started = Instant::now();
     let out = tempfile::tempdir().expect("temp dir");
     let log = out.path().join("bench.log");
-    let mut bench = Bench::start(out.path(), &log);
-    let root = bench.root();
-    let deadline = Instant::now() + Duration::from_secs(420);
-    let status = loop {
-        if let Some(s) = bench.child.try_wait().expect("wait") {
-            break s;
-        }
-        assert!(
-            Instant::now() < deadline,
-            "bench --quick still running after 420 s:\n{}",
-            std::fs::read_to_string(&log).unwrap_or_default()
-        );
-        std::thread::sleep(Duration::from_millis(200));
-    };
-    let printed = std::fs::read_to_string(&log).unwrap_or_default();
-    assert!(
-        status.success(),
-        "bench --quick failed ({status}):\n{printed}"
-    );
+    let mut bench = Bench::start(out.path(), &log, &[]);
     // The bench removed its robot: no cgroup, so no node left in one.
-    let left = common::cgroup_dirs(&root);
-    assert!(left.is_empty(), "left behind: {left:?}");
+    let printed = finish(&mut bench, &log, Duration::from_secs(420));
 
     let json: Value = serde_json::from_str(
         &std::fs::read_to_string(out.path().join("bench.json")).expect("bench.json"),
@@ -310,4 +319,75 @@ fn quick_bench_writes_every_table_and_plot() {
         "e2e bench --quick: {:.0} s\n{printed}",
         started.elapsed().as_secs_f64()
     );
+}
+
+/// Issue 14: `bench --quick --stacks real-perception` on the real Debian ROS 1
+/// nodes: every row of the real-stack table (launch and per-node defaults,
+/// cgroup-only, ConfigBot for one seed and its median row, the oracle's
+/// configs and its verified best if one held), the summary against the
+/// oracle, `oracle-real-perception.json` and the plots. Shape, not numbers.
+#[test]
+fn quick_bench_on_a_real_stack_writes_every_row_and_the_oracle() {
+    let _serial = common::serial();
+    let out = tempfile::tempdir().expect("temp dir");
+    let log = out.path().join("bench.log");
+    let mut bench = Bench::start(out.path(), &log, &["--stacks", "real-perception"]);
+    let printed = finish(&mut bench, &log, Duration::from_secs(600));
+    let json: Value = serde_json::from_str(
+        &std::fs::read_to_string(out.path().join("bench.json")).expect("bench.json"),
+    )
+    .expect("bench.json is JSON");
+    let results = json["results"].as_array().expect("results");
+    for method in [
+        "launch-default",
+        "default",
+        "cgroup-only",
+        "configbot-seed-1",
+        "configbot",
+    ] {
+        let r = results
+            .iter()
+            .find(|r| r["stack"] == "real-perception" && r["method"] == method)
+            .unwrap_or_else(|| panic!("no {method} row in {results:?}"));
+        unit(&r["satisfaction"], &format!("{method} satisfaction"));
+        let metrics = r["metrics"].as_object().expect("metrics");
+        assert_eq!(metrics.len(), 4, "{method}: {metrics:?}");
+        for (k, v) in metrics {
+            secs(v, &format!("{method} {k}"));
+        }
+        let tuned = method.starts_with("c");
+        assert_eq!(r["tuning"].is_object(), tuned, "{method}: {r}");
+        if tuned {
+            let t = &r["tuning"];
+            assert!(t["trials"].as_u64().expect("trials") <= 4, "{t}");
+            secs(&t["finalConfigSeconds"], "finalConfigSeconds");
+        }
+    }
+    let oracle: Value = serde_json::from_str(
+        &std::fs::read_to_string(out.path().join("oracle-real-perception.json"))
+            .expect("oracle-real-perception.json"),
+    )
+    .expect("the oracle is JSON");
+    let configs = oracle["configs"].as_array().expect("configs");
+    assert_eq!(configs.len(), 3, "quick measures three configs");
+    for c in configs {
+        unit(&c["satisfaction"], "oracle satisfaction");
+        unit(&c["objective"], "oracle objective");
+    }
+    // Two of the stack's nodes feed no metric: pinned, not searched.
+    let pinned = oracle["pinned"].as_array().expect("pinned");
+    assert!(
+        pinned.iter().any(|k| k == "cpu:/find_contours"),
+        "{pinned:?}"
+    );
+    assert!(
+        pinned.iter().any(|k| k == "cpu:/contour_moments"),
+        "{pinned:?}"
+    );
+    if !oracle["best"].is_null() {
+        assert!(oracle["best"]["satisfaction"].as_f64().unwrap() >= 0.995);
+    }
+    check_svg(&out.path().join("real-perception-progress.svg"));
+    check_svg(&out.path().join("real-perception-core-rate.svg"));
+    assert!(printed.contains("X ORACLE"), "{printed}");
 }

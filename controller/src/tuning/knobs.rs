@@ -255,6 +255,35 @@ impl KnobSpace {
         cfg
     }
 
+    /// The config `current` as the knobs see it: the searched knobs at the
+    /// point `x`, the pinned ones as `current` has them (unset when it does
+    /// not set them): what a baseline measured, before anything was pinned.
+    pub fn as_running(&self, x: &[f64], current: &ResourceConfig) -> ResourceConfig {
+        let searched = KnobSpace {
+            knobs: self.knobs.clone(),
+            period_micros: self.period_micros,
+            ..KnobSpace::default()
+        };
+        let mut cfg = searched.to_config(x);
+        for k in &self.pinned {
+            match &k.target {
+                KnobTarget::Cpu { node } => {
+                    if let Some(v) = current.cpu.get(node) {
+                        cfg.cpu.insert(node.clone(), *v);
+                    }
+                }
+                KnobTarget::Adaptor { topic, subscriber } => cfg.adaptors.extend(
+                    current
+                        .adaptors
+                        .iter()
+                        .filter(|a| a.topic == *topic && a.subscriber == *subscriber)
+                        .cloned(),
+                ),
+            }
+        }
+        cfg
+    }
+
     /// The point of a config: a knob the config does not set is at its upper
     /// bound (unlimited CPU, pass-through adaptor); values are clamped into bounds.
     pub fn from_config(&self, cfg: &ResourceConfig) -> Vec<f64> {
@@ -571,6 +600,9 @@ mod tests {
         let reach = feeds_a_metric(&graph(&all), &sp);
         assert!(reach.contains("/camera") && reach.contains("/lidar"));
         assert!(!reach.contains("/web"));
+        // A baseline shows the pinned knobs as they ran, not pinned yet.
+        let running = s.as_running(&[1.0, 1.0, 10.0], &ResourceConfig::default());
+        assert!(!running.cpu.contains_key("/web") && running.adaptors.len() == 1);
         // Every config holds the pinned knobs at their minimum.
         let cfg = s.to_config(&[1.0, 1.0, 10.0]);
         assert_eq!(cfg.cpu["/web"], 0.05);

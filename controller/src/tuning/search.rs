@@ -72,7 +72,7 @@ pub(crate) fn baseline_done(
     };
     // The config running now, as the knobs see it (unset knobs at their upper bound).
     let x = run.knobs.from_config(&run.current);
-    let config = run.knobs.to_config(&x);
+    let config = run.knobs.as_running(&x, &run.current);
     let pinned = run.knobs.pinned_names();
     let together: Vec<String> = run
         .knobs
