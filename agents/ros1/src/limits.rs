@@ -22,6 +22,12 @@ pub const MAX_HTTP_HEAD: usize = 64 << 10;
 /// decoder recurses once per value, so this also bounds its stack.
 pub const MAX_XML_DEPTH: usize = 128;
 
+/// Most tags and texts in one XML-RPC document. The decoder holds every one
+/// at once (about 70 bytes each), so a body of 16 MiB of `<a/>` would take
+/// some 300 MB; this keeps one document under ~40 MB while admitting some
+/// 100 000 values (a large `getParam /`, pretty-printed).
+pub const MAX_XML_TOKENS: usize = 500_000;
+
 /// Deepest parameter in the parameter server: the key's namespaces plus the
 /// nesting of its value. setParam over it is refused, so that `getParam /`
 /// always fits [`MAX_XML_DEPTH`] and the stored tree can be read back.

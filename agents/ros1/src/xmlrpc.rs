@@ -1,15 +1,16 @@
 //! A small XML-RPC codec: values, method calls and responses (including
 //! faults), enough for the ROS master, parameter server and slave APIs.
 //! Pure: bytes in, values out. Documents nested deeper than
-//! [`MAX_XML_DEPTH`] elements are refused before any value is built, so the
-//! recursive decoder's stack stays bounded whatever a peer sends.
+//! [`MAX_XML_DEPTH`] elements, or with more than [`MAX_XML_TOKENS`] tags and
+//! texts, are refused before any value is built, so the recursive decoder's
+//! stack and memory stay bounded whatever a peer sends.
 
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
 
 use serde::{Deserialize, Serialize};
 
-use crate::limits::MAX_XML_DEPTH;
+use crate::limits::{MAX_XML_DEPTH, MAX_XML_TOKENS};
 
 /// An XML-RPC value.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -254,6 +255,12 @@ fn tokenize(src: &str) -> Result<Vec<(usize, Tok)>, XmlRpcError> {
     // parser reports mismatched tags itself.
     let mut depth = 0usize;
     while i < b.len() {
+        if toks.len() >= MAX_XML_TOKENS {
+            return Err(malformed(
+                i,
+                format!("more than {MAX_XML_TOKENS} tags and texts"),
+            ));
+        }
         if b[i] == b'<' {
             if src[i..].starts_with("<?") {
                 let e = src[i..]
@@ -661,6 +668,23 @@ mod tests {
                     }
                 }
             }
+        }
+
+        #[test]
+        fn documents_with_too_many_tags_are_refused() {
+            let flat = |n: usize| {
+                format!(
+                    "<methodCall><methodName>m</methodName><params><param><value><array><data>{}</data></array></value></param></params></methodCall>",
+                    "<value/>".repeat(n)
+                )
+            };
+            // Ten tags around the values.
+            assert!(decode_call(&flat(MAX_XML_TOKENS - 100)).is_ok());
+            let err = decode_call(&flat(MAX_XML_TOKENS)).unwrap_err();
+            assert!(
+                err.to_string().contains("more than 500000 tags and texts"),
+                "{err}"
+            );
         }
 
         #[test]
