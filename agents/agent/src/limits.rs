@@ -113,3 +113,76 @@ where
         });
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use axum::routing::post;
+    use http_body_util::BodyExt;
+    use tokio::io::AsyncReadExt;
+    use tower::ServiceExt;
+
+    use super::*;
+
+    /// A route that echoes its body's length behind [`bounded_body`], with
+    /// the extractors' limit raised to the same size as in the API router.
+    fn app() -> Router {
+        Router::new()
+            .route(
+                "/",
+                post(|b: axum::body::Bytes| async move { b.len().to_string() }),
+            )
+            .layer(axum::extract::DefaultBodyLimit::max(MAX_BODY_BYTES))
+            .layer(axum::middleware::from_fn(bounded_body))
+    }
+
+    async fn send(body: Body, length: Option<u64>) -> (StatusCode, String) {
+        let mut req = Request::post("/");
+        if let Some(n) = length {
+            req = req.header(header::CONTENT_LENGTH, n);
+        }
+        let resp = app().oneshot(req.body(body).unwrap()).await.unwrap();
+        let code = resp.status();
+        let bytes = resp.into_body().collect().await.unwrap().to_bytes();
+        (code, String::from_utf8_lossy(&bytes).into_owned())
+    }
+
+    #[tokio::test]
+    async fn bodies_within_the_limit_pass_and_larger_ones_are_413() {
+        let (code, body) = send(Body::from(vec![b'x'; MAX_BODY_BYTES]), None).await;
+        assert_eq!((code, body), (StatusCode::OK, MAX_BODY_BYTES.to_string()));
+        let (code, body) = send(Body::empty(), Some(MAX_BODY_BYTES as u64 + 1)).await;
+        assert_eq!(code, StatusCode::PAYLOAD_TOO_LARGE);
+        assert!(
+            body.contains("(3145729 bytes) is larger than the 3145728 byte limit"),
+            "{body}"
+        );
+        // No length: found while reading.
+        let chunks = futures_util::stream::iter(
+            (0..4).map(|_| Ok::<_, std::io::Error>(vec![b'x'; 1 << 20])),
+        );
+        let (code, body) = send(Body::from_stream(chunks), None).await;
+        assert_eq!(code, StatusCode::PAYLOAD_TOO_LARGE, "{body}");
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn a_body_that_stops_arriving_is_408() {
+        let stalled = futures_util::stream::pending::<Result<Vec<u8>, std::io::Error>>();
+        let (code, body) = send(Body::from_stream(stalled), None).await;
+        assert_eq!(code, StatusCode::REQUEST_TIMEOUT);
+        assert!(body.contains("not received within 30 s"), "{body}");
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn idle_connections_are_closed_after_the_header_timeout() {
+        let l = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+        let addr = l.local_addr().unwrap();
+        let srv = tokio::spawn(serve(l, app()));
+        let mut s = tokio::net::TcpStream::connect(addr).await.unwrap();
+        let start = tokio::time::Instant::now();
+        let mut out = Vec::new();
+        s.read_to_end(&mut out).await.unwrap();
+        assert!(out.is_empty());
+        assert!(start.elapsed() >= HEADER_TIMEOUT, "{:?}", start.elapsed());
+        srv.abort();
+    }
+}
