@@ -3,7 +3,7 @@
 //! applying a patch twice changes nothing more, and a patch that is not an
 //! object replaces the target.
 
-use configbot_controller::api::resources::merge_patch;
+use configbot_controller::api::patch::merge_patch;
 use proptest::prelude::*;
 use serde_json::Value;
 
