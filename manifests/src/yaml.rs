@@ -17,6 +17,11 @@ use serde_saphyr::Spanned;
 pub const MAX_INPUT_BYTES: usize = 4 * 1024 * 1024;
 /// Most values an alias expansion may produce across one input (alias bombs stop here).
 pub const MAX_ALIAS_REPLAYED_EVENTS: usize = 100_000;
+/// Deepest nesting of sequences and mappings. Manifests nest about ten
+/// levels; the YAML reader recurses once per level with large frames (a debug
+/// build overflowed a 2 MiB thread stack at 60 levels, under the reader's own
+/// default budget of 64), so deeper input is refused before it is read.
+pub const MAX_NESTING: usize = 32;
 
 /// A line and column, both 1-based.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -70,6 +75,10 @@ pub fn parse_documents(text: &str) -> Result<Vec<Document>, SyntaxError> {
     }
     let mut options = serde_saphyr::options! { with_snippet: false };
     options.alias_limits.max_total_replayed_events = MAX_ALIAS_REPLAYED_EVENTS;
+    let mut budget = options.budget.take().unwrap_or_default();
+    budget.max_depth = MAX_NESTING;
+    budget.flow_nesting_limit = MAX_NESTING;
+    options.budget = Some(budget);
     let raw: Vec<Spanned<Raw>> =
         serde_saphyr::from_multiple_with_options(text, options).map_err(|e| SyntaxError {
             message: clean_saphyr_message(&e.to_string()),

@@ -2,6 +2,8 @@
 //!
 //! Access rules match the control plane: by default a Unix socket with mode
 //! 0600 (only root/the agent's user may connect); TCP only with a bearer token.
+//! Bodies, request heads and idle connections are bounded by
+//! [`crate::limits`]: an oversized body is a 413, a slow one a 408.
 //!
 //! - `GET  /v1/nodes`              node inventory
 //! - `PUT  /v1/stack`              a `RobotStack` manifest (or a plain `StackSpec`), applied live
@@ -23,7 +25,7 @@ use std::sync::Arc;
 
 use axum::body::Body;
 use axum::extract::rejection::JsonRejection;
-use axum::extract::{Path as UrlPath, Request, State};
+use axum::extract::{DefaultBodyLimit, Path as UrlPath, Request, State};
 use axum::http::{StatusCode, header};
 use axum::middleware::{self, Next};
 use axum::response::{IntoResponse, Response};
@@ -36,6 +38,7 @@ use configbot_manifests::{Manifest, ResourceConfig};
 use crate::agent::error_chain;
 use crate::error::Error;
 use crate::events::RuntimeEvent;
+use crate::limits;
 use crate::measure::{MeasureReport, MeasureRequest};
 use crate::runtime::NodeRuntime;
 use crate::spec::StackSpec;
@@ -46,6 +49,7 @@ pub enum ApiError {
     BadRequest(String),
     NotFound(String),
     Conflict(String),
+    TooLarge(String),
     Internal,
 }
 
@@ -83,6 +87,7 @@ impl IntoResponse for ApiError {
             Self::BadRequest(m) => (StatusCode::BAD_REQUEST, m),
             Self::NotFound(m) => (StatusCode::NOT_FOUND, m),
             Self::Conflict(m) => (StatusCode::CONFLICT, m),
+            Self::TooLarge(m) => (StatusCode::PAYLOAD_TOO_LARGE, m),
             Self::Internal => (
                 StatusCode::INTERNAL_SERVER_ERROR,
                 "internal error".to_owned(),
@@ -110,6 +115,8 @@ pub fn router(rt: NodeRuntime, token: Option<String>) -> Router {
         .route("/v1/status", get(status))
         .route("/metrics", get(metrics))
         .with_state(rt)
+        .layer(DefaultBodyLimit::max(limits::MAX_BODY_BYTES))
+        .layer(middleware::from_fn(limits::bounded_body))
         .layer(middleware::from_fn_with_state(token, auth))
 }
 
@@ -136,6 +143,9 @@ fn constant_time_eq(a: &[u8], b: &[u8]) -> bool {
 }
 
 fn bad_json(r: &JsonRejection) -> ApiError {
+    if r.status() == StatusCode::PAYLOAD_TOO_LARGE {
+        return ApiError::TooLarge(r.body_text());
+    }
     ApiError::BadRequest(r.body_text())
 }
 
@@ -301,7 +311,7 @@ pub async fn serve_unix(
     rt: NodeRuntime,
     listener: tokio::net::UnixListener,
 ) -> std::io::Result<()> {
-    axum::serve(listener, router(rt, None)).await
+    limits::serve(listener, router(rt, None)).await
 }
 
 /// Serves the API on TCP; a non-empty bearer token is mandatory.
@@ -316,5 +326,5 @@ pub async fn serve_tcp(
             "tcp listener needs a bearer token",
         ));
     }
-    axum::serve(listener, router(rt, Some(token))).await
+    limits::serve(listener, router(rt, Some(token))).await
 }

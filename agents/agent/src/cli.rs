@@ -51,9 +51,16 @@ pub struct AgentArgs {
     /// ROS_MASTER_URI of the robot: the agent serves the ROS master here.
     #[arg(long, default_value = "http://localhost:11311/")]
     pub ros_master_uri: String,
-    /// Address the ROS master and adaptors bind to.
-    #[arg(long, default_value = "0.0.0.0")]
-    pub ros_bind_host: String,
+    /// Address the ROS master (and parameter server) listens on. The default,
+    /// every interface, is what rosmaster does, so nodes on other hosts can
+    /// register; 127.0.0.1 keeps it to this host.
+    #[arg(long, alias = "ros-bind-host", default_value = configbot_ros1::DEFAULT_MASTER_BIND)]
+    pub ros_bind: String,
+    /// Address the ROS rate adaptors (slave XML-RPC and TCPROS) listen on.
+    /// Only adapted subscribers on this host connect to them, at localhost,
+    /// so the default is loopback.
+    #[arg(long, default_value = configbot_ros1::DEFAULT_ADAPTOR_BIND)]
+    pub ros_adaptor_bind: String,
     /// SQLite file of the ROS master (registrations, parameters, adaptors).
     #[arg(long, default_value = "/var/lib/configbot/ros1.db")]
     pub ros_db: PathBuf,
@@ -73,7 +80,8 @@ pub struct AgentArgs {
     /// Unix socket of the API (mode 0600).
     #[arg(long, default_value = "/run/configbot/agent.sock")]
     pub socket: PathBuf,
-    /// Also serve the API on TCP (needs --token).
+    /// Also serve the API on TCP at this address, e.g. 127.0.0.1:9443 (needs
+    /// --token). Without it the API is only on the Unix socket.
     #[arg(long)]
     pub tcp: Option<SocketAddr>,
     /// Bearer token for TCP.
@@ -161,7 +169,8 @@ pub fn options(args: &AgentArgs) -> Result<RuntimeOptions> {
         ros: (!args.no_ros).then(|| RosOptions {
             config: Ros1Config {
                 master_uri: args.ros_master_uri.clone(),
-                bind_host: args.ros_bind_host.clone(),
+                bind_host: args.ros_bind.clone(),
+                adaptor_bind_host: args.ros_adaptor_bind.clone(),
                 ..Ros1Config::default()
             },
             db_path: args.ros_db.clone(),

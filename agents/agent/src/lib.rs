@@ -13,6 +13,7 @@ pub mod cli;
 pub mod client;
 pub mod error;
 pub mod events;
+pub mod limits;
 pub mod manifest;
 pub mod measure;
 pub mod metrics;

@@ -1,5 +1,6 @@
 //! HTTP API tests: `Router::oneshot` for the endpoints, a real TCP listener
-//! for the bearer token, a real Unix socket for the 0600 rule (root needed).
+//! for the bearer token, a real Unix socket for the 0600 rule (root needed),
+//! and both listeners under nesting bombs and 100 MB bodies.
 
 mod common;
 
@@ -246,4 +247,141 @@ async fn unix_socket_is_0600_and_refuses_other_users() {
     .unwrap();
     assert_eq!(root_status, 200);
     assert_eq!(nobody_exit, Some(13), "user nobody could connect");
+}
+
+/// A PUT of `/v1/stack` with `body`, over `s`; the answer's status line and body.
+async fn put_raw<S: tokio::io::AsyncRead + tokio::io::AsyncWrite + Unpin>(
+    s: &mut S,
+    token: &str,
+    body: &[u8],
+) -> String {
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let head = format!(
+        "PUT /v1/stack HTTP/1.1\r\nHost: agent\r\nAuthorization: Bearer {token}\r\nContent-Type: application/json\r\nContent-Length: {}\r\nConnection: close\r\n\r\n",
+        body.len()
+    );
+    s.write_all(head.as_bytes()).await.unwrap();
+    s.write_all(body).await.unwrap();
+    let mut out = Vec::new();
+    tokio::time::timeout(LIMIT_WAIT, s.read_to_end(&mut out))
+        .await
+        .expect("no answer")
+        .unwrap();
+    String::from_utf8_lossy(&out).into_owned()
+}
+
+/// Streams `len` bytes of body (announced, or chunked without a length) 64
+/// KiB at a time from one buffer while reading the answer; the writer must
+/// end (the server closes).
+async fn put_streamed<S>(s: S, token: &str, len: usize, chunked: bool) -> String
+where
+    S: tokio::io::AsyncRead + tokio::io::AsyncWrite + Send + 'static,
+{
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let (mut r, mut w) = tokio::io::split(s);
+    let length = if chunked {
+        "Transfer-Encoding: chunked".to_string()
+    } else {
+        format!("Content-Length: {len}")
+    };
+    let head = format!(
+        "PUT /v1/stack HTTP/1.1\r\nHost: agent\r\nAuthorization: Bearer {token}\r\nContent-Type: application/json\r\n{length}\r\n\r\n"
+    );
+    let writer = tokio::spawn(async move {
+        w.write_all(head.as_bytes()).await?;
+        let buf = vec![b' '; 64 << 10];
+        let mut left = len;
+        while left > 0 {
+            let n = left.min(buf.len());
+            if chunked {
+                w.write_all(format!("{n:x}\r\n").as_bytes()).await?;
+            }
+            w.write_all(&buf[..n]).await?;
+            if chunked {
+                w.write_all(b"\r\n").await?;
+            }
+            left -= n;
+        }
+        if chunked {
+            w.write_all(b"0\r\n\r\n").await?;
+        }
+        std::io::Result::Ok(())
+    });
+    let mut out = Vec::new();
+    let mut buf = [0u8; 8192];
+    let read = async {
+        loop {
+            match r.read(&mut buf).await {
+                Ok(0) | Err(_) => break,
+                Ok(n) => out.extend_from_slice(&buf[..n]),
+            }
+        }
+    };
+    tokio::time::timeout(LIMIT_WAIT, read)
+        .await
+        .expect("no answer");
+    tokio::time::timeout(LIMIT_WAIT, writer)
+        .await
+        .expect("the agent kept reading a refused body")
+        .unwrap()
+        .ok();
+    String::from_utf8_lossy(&out).into_owned()
+}
+
+const LIMIT_WAIT: Duration = Duration::from_secs(30);
+
+/// Nesting bombs (XML and JSON, 200 000 levels) and a streamed 100 MB body
+/// to the agent's TCP and Unix listeners: 400, 400, 413, and the next
+/// request is served.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn listeners_refuse_nesting_bombs_and_100_mb_bodies_and_go_on() {
+    let mut env = Env::new();
+    let agent = env.start(stack_json(r#"{"apps":[]}"#)).await;
+    let rt = configbot_agent::NodeRuntime::with_agent(agent).unwrap();
+    let l = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let addr = l.local_addr().unwrap();
+    tokio::spawn(serve_tcp(rt.clone(), l, "s3cret".into()));
+    let path = env.path("agent.sock");
+    tokio::spawn(serve_unix(rt, bind_unix(&path).unwrap()));
+
+    let xml_bomb = format!(
+        "{}{}",
+        "<array>".repeat(200_000),
+        "</array>".repeat(200_000)
+    );
+    let json_bomb = format!("{}{}", "[".repeat(200_000), "]".repeat(200_000));
+    let hundred_mb = 100 << 20;
+    for unix in [false, true] {
+        let tcp = || tokio::net::TcpStream::connect(addr);
+        let sock = || tokio::net::UnixStream::connect(&path);
+        for bomb in [&xml_bomb, &json_bomb] {
+            let r = if unix {
+                put_raw(&mut sock().await.unwrap(), "s3cret", bomb.as_bytes()).await
+            } else {
+                put_raw(&mut tcp().await.unwrap(), "s3cret", bomb.as_bytes()).await
+            };
+            assert!(r.starts_with("HTTP/1.1 400"), "unix={unix}: {r}");
+        }
+        for chunked in [false, true] {
+            let r = if unix {
+                put_streamed(sock().await.unwrap(), "s3cret", hundred_mb, chunked).await
+            } else {
+                put_streamed(tcp().await.unwrap(), "s3cret", hundred_mb, chunked).await
+            };
+            assert!(r.starts_with("HTTP/1.1 413"), "unix={unix}: {r}");
+            let size = if chunked { "" } else { " (104857600 bytes)" };
+            assert!(
+                r.contains(&format!(
+                    "request body{size} is larger than the 3145728 byte limit"
+                )),
+                "{r}"
+            );
+        }
+        let ok = if unix {
+            put_raw(&mut sock().await.unwrap(), "s3cret", br#"{"apps":[]}"#).await
+        } else {
+            put_raw(&mut tcp().await.unwrap(), "s3cret", br#"{"apps":[]}"#).await
+        };
+        assert!(ok.starts_with("HTTP/1.1 200"), "unix={unix}: {ok}");
+    }
 }

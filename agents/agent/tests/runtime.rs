@@ -490,7 +490,7 @@ async fn the_binary_runs_the_full_runtime_from_a_robot_stack_yaml() {
         .args([
             "--ros-master-uri",
             &env.master_uri,
-            "--ros-bind-host",
+            "--ros-bind",
             "127.0.0.1",
         ])
         .arg("--ros-db")

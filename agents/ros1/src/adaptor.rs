@@ -16,6 +16,7 @@ use tokio::net::TcpListener;
 use tokio::sync::{mpsc, watch};
 
 use crate::http::{BoxFut, Handler};
+use crate::limits::TCPROS_HEADER_TIMEOUT;
 use crate::stats::RateWindow;
 use crate::tcpros::{self, Header};
 use crate::upstream::{FrameSink, UpstreamSet};
@@ -291,8 +292,25 @@ pub async fn serve_tcpros(listener: TcpListener, relays: Relays, timeout: Durati
         let relays = relays.clone();
         tokio::spawn(async move {
             let peer = addr.to_string();
-            let Ok(h) = tcpros::read_header(&mut stream, &peer).await else {
-                return;
+            let read = tokio::time::timeout(
+                TCPROS_HEADER_TIMEOUT,
+                tcpros::read_header(&mut stream, &peer),
+            );
+            let h = match read.await {
+                Ok(Ok(h)) => h,
+                // A header over the limit or garbled: say why, as publishers do.
+                Ok(Err(tcpros::TcprosError::Protocol { what, .. })) => {
+                    let mut e = Header::new();
+                    e.insert("error".into(), what);
+                    let _ = tokio::io::AsyncWriteExt::write_all(
+                        &mut stream,
+                        &tcpros::encode_header(&e),
+                    )
+                    .await;
+                    return;
+                }
+                // Gone, or too slow to send a header: drop the connection.
+                _ => return,
             };
             let id = EdgeId {
                 topic: h.get("topic").cloned().unwrap_or_default(),

@@ -1,6 +1,8 @@
 //! XML-RPC over HTTP: a hyper server that dispatches decoded calls (with
 //! `system.multicall`) to a handler, and a minimal one-shot client used to
 //! call node slave APIs (publisherUpdate, getPid, paramUpdate, ...).
+//! Both sides are bounded by [`crate::limits`]: body size, nesting depth
+//! (in the codec), and how long a client may take to send a request or idle.
 
 use std::future::Future;
 use std::net::SocketAddr;
@@ -13,10 +15,11 @@ use hyper::body::Bytes;
 use hyper::server::conn::http1;
 use hyper::service::service_fn;
 use hyper::{Request, Response as HttpResponse};
-use hyper_util::rt::TokioIo;
+use hyper_util::rt::{TokioIo, TokioTimer};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::{TcpListener, TcpStream};
 
+use crate::limits::{MAX_HTTP_HEAD, MAX_XMLRPC_BODY, ServeLimits};
 use crate::xmlrpc::{self, MethodCall, Response, Value, XmlRpcError};
 
 /// Errors of XML-RPC client calls.
@@ -49,6 +52,12 @@ pub enum HttpError {
     },
     #[error("xml-rpc call {method} to {uri}: malformed http response")]
     BadHttp { uri: String, method: String },
+    #[error("xml-rpc call {method} to {uri}: response larger than {limit} bytes")]
+    TooLarge {
+        uri: String,
+        method: String,
+        limit: usize,
+    },
 }
 
 /// A boxed future, for handler trait objects.
@@ -102,8 +111,17 @@ async fn dispatch<H: Handler>(h: Arc<H>, call: MethodCall) -> Response {
     Response::Ok(Value::Array(out))
 }
 
-/// Serves XML-RPC on `listener` until the task is dropped/aborted.
+/// Serves XML-RPC on `listener` until the task is dropped/aborted, with the
+/// default [`ServeLimits`].
 pub async fn serve<H: Handler>(listener: TcpListener, handler: Arc<H>) {
+    serve_with(listener, handler, ServeLimits::default()).await;
+}
+
+/// Serves XML-RPC on `listener` until the task is dropped/aborted. A request
+/// over `limits` is answered with fault −32700 and its connection closed; a
+/// client that sends its head or body too slowly, or idles longer than the
+/// header timeout between requests, is disconnected.
+pub async fn serve_with<H: Handler>(listener: TcpListener, handler: Arc<H>, limits: ServeLimits) {
     loop {
         let Ok((stream, _)) = listener.accept().await else {
             tokio::time::sleep(Duration::from_millis(50)).await;
@@ -115,32 +133,70 @@ pub async fn serve<H: Handler>(listener: TcpListener, handler: Arc<H>) {
             let svc = service_fn(move |req: Request<hyper::body::Incoming>| {
                 let h = h.clone();
                 async move {
-                    let body = req.into_body().collect().await.map(|b| b.to_bytes());
-                    let resp = match body {
+                    let (resp, keep) = match read_body(req, &limits).await {
                         Ok(b) => match xmlrpc::decode_call(&String::from_utf8_lossy(&b)) {
-                            Ok(call) => dispatch(h, call).await,
-                            Err(e) => Response::Fault {
-                                code: -32700,
-                                message: e.to_string(),
-                            },
+                            Ok(call) => (dispatch(h, call).await, true),
+                            Err(e) => (parse_fault(e.to_string()), true),
                         },
-                        Err(e) => Response::Fault {
-                            code: -32700,
-                            message: format!("reading request body: {e}"),
-                        },
+                        // The rest of the body is unread: the connection cannot go on.
+                        Err(message) => (parse_fault(message), false),
                     };
                     let text = xmlrpc::encode_response(&resp);
-                    HttpResponse::builder()
-                        .header("Content-Type", "text/xml")
-                        .body(Full::new(Bytes::from(text)))
+                    let mut b = HttpResponse::builder().header("Content-Type", "text/xml");
+                    if !keep {
+                        b = b.header("Connection", "close");
+                    }
+                    b.body(Full::new(Bytes::from(text)))
                 }
             });
             let _ = http1::Builder::new()
+                .timer(TokioTimer::new())
+                .header_read_timeout(limits.header_timeout)
                 .title_case_headers(true)
                 .keep_alive(true)
                 .serve_connection(TokioIo::new(stream), svc)
                 .await;
         });
+    }
+}
+
+fn parse_fault(message: String) -> Response {
+    Response::Fault {
+        code: -32700,
+        message,
+    }
+}
+
+/// The request body, or why it was refused: larger than the limit (told by
+/// Content-Length before reading, or found while reading), too slow, broken.
+async fn read_body(
+    req: Request<hyper::body::Incoming>,
+    limits: &ServeLimits,
+) -> Result<Bytes, String> {
+    let over = |n: Option<u64>| {
+        let size = n.map(|n| format!(" ({n} bytes)")).unwrap_or_default();
+        format!(
+            "request body{size} is larger than the {} byte limit",
+            limits.max_body
+        )
+    };
+    let declared = req
+        .headers()
+        .get(hyper::header::CONTENT_LENGTH)
+        .and_then(|v| v.to_str().ok())
+        .and_then(|v| v.parse::<u64>().ok());
+    if let Some(n) = declared.filter(|&n| n > limits.max_body as u64) {
+        return Err(over(Some(n)));
+    }
+    let body = http_body_util::Limited::new(req.into_body(), limits.max_body);
+    match tokio::time::timeout(limits.body_timeout, body.collect()).await {
+        Ok(Ok(c)) => Ok(c.to_bytes()),
+        Ok(Err(e)) if e.is::<http_body_util::LengthLimitError>() => Err(over(None)),
+        Ok(Err(e)) => Err(format!("reading request body: {e}")),
+        Err(_) => Err(format!(
+            "request body not received within {} s",
+            limits.body_timeout.as_secs_f64()
+        )),
     }
 }
 
@@ -191,7 +247,19 @@ async fn call_inner(uri: &str, method: &str, params: &[Value]) -> Result<Value, 
     );
     s.write_all(req.as_bytes()).await.map_err(io)?;
     let mut buf = Vec::new();
-    s.read_to_end(&mut buf).await.map_err(io)?;
+    let limit = MAX_HTTP_HEAD + MAX_XMLRPC_BODY;
+    (&mut s)
+        .take(limit as u64 + 1)
+        .read_to_end(&mut buf)
+        .await
+        .map_err(io)?;
+    if buf.len() > limit {
+        return Err(HttpError::TooLarge {
+            uri: uri.into(),
+            method: method.into(),
+            limit,
+        });
+    }
     let bad = || HttpError::BadHttp {
         uri: uri.into(),
         method: method.into(),
@@ -287,6 +355,100 @@ mod tests {
         let a = v.as_array().unwrap();
         assert_eq!(a[0], Value::Array(vec![Value::Array(vec![Value::Int(2)])]));
         assert!(matches!(&a[1], Value::Struct(m) if m.contains_key("faultCode")));
+        srv.abort();
+    }
+
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+
+    /// A server with `limits` and the client address it listens on.
+    async fn limited(limits: ServeLimits) -> (tokio::task::JoinHandle<()>, SocketAddr, String) {
+        let (l, addr) = bind("127.0.0.1", 0).await.unwrap();
+        let srv = tokio::spawn(serve_with(l, Arc::new(Echo), limits));
+        (srv, addr, format!("http://127.0.0.1:{}/", addr.port()))
+    }
+
+    /// Writes `req` and reads until the server closes, within 10 s.
+    async fn exchange(addr: SocketAddr, req: &[u8]) -> String {
+        let mut s = TcpStream::connect(addr).await.unwrap();
+        s.write_all(req).await.unwrap();
+        let mut out = Vec::new();
+        tokio::time::timeout(Duration::from_secs(10), s.read_to_end(&mut out))
+            .await
+            .expect("the server neither answered nor closed within 10 s")
+            .unwrap();
+        String::from_utf8_lossy(&out).into_owned()
+    }
+
+    const SMALL: ServeLimits = ServeLimits {
+        max_body: 1024,
+        header_timeout: Duration::from_millis(300),
+        body_timeout: Duration::from_millis(300),
+    };
+
+    #[tokio::test]
+    async fn bodies_over_the_limit_are_faults_and_the_server_goes_on() {
+        let (srv, addr, uri) = limited(SMALL).await;
+        // Declared too large: refused before the body is read.
+        let r = exchange(
+            addr,
+            b"POST / HTTP/1.1\r\nHost: x\r\nContent-Length: 2000\r\n\r\n",
+        )
+        .await;
+        assert!(r.contains("<i4>-32700</i4>"), "{r}");
+        assert!(
+            r.contains("(2000 bytes) is larger than the 1024 byte limit"),
+            "{r}"
+        );
+        // Chunked, no length: refused once 1024 bytes have arrived.
+        let chunk = "a".repeat(2000);
+        let req = format!(
+            "POST / HTTP/1.1\r\nHost: x\r\nTransfer-Encoding: chunked\r\nConnection: close\r\n\r\n7d0\r\n{chunk}\r\n0\r\n\r\n"
+        );
+        let r = exchange(addr, req.as_bytes()).await;
+        assert!(
+            r.contains("request body is larger than the 1024 byte limit"),
+            "{r}"
+        );
+        let v = call(&uri, "x", &[Value::Int(3)], Duration::from_secs(5))
+            .await
+            .unwrap();
+        assert_eq!(v, Value::Array(vec![Value::Int(3)]));
+        srv.abort();
+    }
+
+    #[tokio::test]
+    async fn deep_nesting_is_a_fault() {
+        let (srv, _, uri) = limited(ServeLimits::default()).await;
+        let mut v = Value::Int(1);
+        for _ in 0..200 {
+            v = Value::Array(vec![v]);
+        }
+        let err = call(&uri, "x", &[v], Duration::from_secs(5))
+            .await
+            .unwrap_err();
+        assert!(
+            matches!(&err, HttpError::Fault { code: -32700, message, .. } if message.contains("nested deeper than 128")),
+            "{err}"
+        );
+        srv.abort();
+    }
+
+    #[tokio::test]
+    async fn slow_and_idle_clients_are_disconnected() {
+        let (srv, addr, uri) = limited(SMALL).await;
+        // Idle: connected, nothing sent; closed after the header timeout.
+        assert_eq!(exchange(addr, b"").await, "");
+        // Half a head, then silence.
+        assert_eq!(exchange(addr, b"POST / HTTP/1.1\r\nHost:").await, "");
+        // A body that stops arriving: a fault once the body timeout passes.
+        let r = exchange(
+            addr,
+            b"POST / HTTP/1.1\r\nHost: x\r\nContent-Length: 100\r\n\r\n<methodCall>",
+        )
+        .await;
+        assert!(r.contains("request body not received within 0.3 s"), "{r}");
+        let v = call(&uri, "x", &[], Duration::from_secs(5)).await.unwrap();
+        assert_eq!(v, Value::Array(vec![]));
         srv.abort();
     }
 }

@@ -6,6 +6,7 @@
 pub mod adaptor;
 mod core;
 pub mod http;
+pub mod limits;
 mod master;
 pub mod meter;
 pub mod params;
@@ -52,13 +53,26 @@ pub enum Ros1Error {
     Metrics(#[from] prometheus::Error),
 }
 
+/// Where the master listens unless told otherwise: every interface, as
+/// rosmaster does.
+pub const DEFAULT_MASTER_BIND: &str = "0.0.0.0";
+
+/// Where the adaptors listen unless told otherwise: loopback, where the
+/// default advertised host (localhost) points.
+pub const DEFAULT_ADAPTOR_BIND: &str = "127.0.0.1";
+
 /// Configuration of [`Ros1DataPlane::start`].
 #[derive(Clone)]
 pub struct Ros1Config {
     /// The URI nodes use as ROS_MASTER_URI; its port is where the master listens.
     pub master_uri: String,
-    /// Address the master and adaptor servers bind to.
+    /// Address the master binds to. rosmaster listens on every interface
+    /// (nodes on other hosts reach it); the default does the same.
     pub bind_host: String,
+    /// Address the adaptors' slave XML-RPC and TCPROS servers bind to. Only
+    /// adapted subscribers connect there, at `advertise_host`; the default,
+    /// loopback, fits the default `advertise_host` (localhost).
+    pub adaptor_bind_host: String,
     /// Host name put in adaptor URIs (must resolve for the nodes).
     pub advertise_host: String,
     /// Ports of the adaptor's slave XML-RPC and TCPROS servers (0 = any).
@@ -80,6 +94,7 @@ impl std::fmt::Debug for Ros1Config {
         f.debug_struct("Ros1Config")
             .field("master_uri", &self.master_uri)
             .field("bind_host", &self.bind_host)
+            .field("adaptor_bind_host", &self.adaptor_bind_host)
             .field("refresh_period", &self.refresh_period)
             .field("placement", &self.placement.is_some())
             .finish_non_exhaustive()
@@ -90,7 +105,8 @@ impl Default for Ros1Config {
     fn default() -> Self {
         Self {
             master_uri: "http://localhost:11311/".into(),
-            bind_host: "0.0.0.0".into(),
+            bind_host: DEFAULT_MASTER_BIND.into(),
+            adaptor_bind_host: DEFAULT_ADAPTOR_BIND.into(),
             advertise_host: "localhost".into(),
             adaptor_xmlrpc_port: 0,
             adaptor_tcpros_port: 0,
@@ -161,8 +177,8 @@ impl Ros1DataPlane {
     ) -> Result<Self, Ros1Error> {
         let (_, port, _) = http::parse_uri(&config.master_uri)
             .ok_or_else(|| Ros1Error::BadMasterUri(config.master_uri.clone()))?;
-        let bind = |what, port: u16| {
-            let host = config.bind_host.clone();
+        let bind = |what, host: &String, port: u16| {
+            let host = host.clone();
             async move {
                 http::bind(&host, port)
                     .await
@@ -173,9 +189,12 @@ impl Ros1DataPlane {
                     })
             }
         };
-        let (master_l, master_addr) = bind("master", port).await?;
-        let (slave_l, slave_addr) = bind("adaptor xml-rpc", config.adaptor_xmlrpc_port).await?;
-        let (tcp_l, tcp_addr) = bind("adaptor tcpros", config.adaptor_tcpros_port).await?;
+        let (master_l, master_addr) = bind("master", &config.bind_host, port).await?;
+        let adaptor_host = &config.adaptor_bind_host;
+        let (slave_l, slave_addr) =
+            bind("adaptor xml-rpc", adaptor_host, config.adaptor_xmlrpc_port).await?;
+        let (tcp_l, tcp_addr) =
+            bind("adaptor tcpros", adaptor_host, config.adaptor_tcpros_port).await?;
         let store = store::Store::open(db_path)?;
         let state = store.load()?;
         let settings = store.load_adaptors()?;

@@ -8,6 +8,7 @@ use configbot_dataplane::EdgeId;
 
 use crate::core::{Core, lock};
 use crate::http::{BoxFut, Handler};
+use crate::limits::MAX_PARAM_DEPTH;
 use crate::params;
 use crate::xmlrpc::{MethodCall, Response, Value};
 
@@ -191,6 +192,16 @@ impl MasterHandler {
                     .get(2)
                     .cloned()
                     .ok_or_else(|| Value::ros(-1, "missing parameter value", Value::Int(0)))?;
+                let depth = params::depth(&key, &value);
+                if depth > MAX_PARAM_DEPTH {
+                    return Err(Value::ros(
+                        -1,
+                        format!(
+                            "parameter {key} nests {depth} levels (namespaces and value); the limit is {MAX_PARAM_DEPTH}"
+                        ),
+                        Value::Int(0),
+                    ));
+                }
                 let fx = lock(&core.state).set_param(&key, value);
                 core.persist();
                 core.run_effects(fx);

@@ -47,6 +47,12 @@ fn segments(key: &str) -> Vec<&str> {
     key.split('/').filter(|p| !p.is_empty()).collect()
 }
 
+/// How deep `value` set at canonical `key` reaches into the parameter tree:
+/// the key's names plus the value's nesting below its first level.
+pub fn depth(key: &str, value: &Value) -> usize {
+    segments(key).len() + value.depth() - 1
+}
+
 /// The parameter tree; namespaces are `Value::Struct`.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct ParamTree {

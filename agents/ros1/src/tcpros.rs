@@ -1,7 +1,9 @@
 //! TCPROS wire format without message generation: connection headers
 //! (length-prefixed `key=value` fields), length-prefixed message frames, and
 //! the subscriber side of a connection (requestTopic on the publisher's slave
-//! API, then the header handshake).
+//! API, then the header handshake). Headers are bounded by
+//! [`MAX_TCPROS_HEADER`] and frames by [`MAX_FRAME`] before anything is
+//! allocated.
 
 use std::collections::BTreeMap;
 use std::time::Duration;
@@ -10,13 +12,11 @@ use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
 use tokio::net::TcpStream;
 
 use crate::http;
+use crate::limits::{MAX_FRAME, MAX_TCPROS_HEADER};
 use crate::xmlrpc::Value;
 
 /// A connection header.
 pub type Header = BTreeMap<String, String>;
-
-/// Largest header or frame accepted (guards against garbage lengths).
-pub const MAX_FRAME: usize = 256 << 20;
 
 /// Errors of TCPROS connections.
 #[derive(Debug, thiserror::Error)]
@@ -82,10 +82,21 @@ pub fn decode_header(mut b: &[u8]) -> Result<Header, String> {
     Ok(h)
 }
 
-/// Reads one u32-length-prefixed block (header or message frame).
+/// Reads one u32-length-prefixed message frame.
 pub async fn read_block<R: AsyncRead + Unpin>(
     r: &mut R,
     peer: &str,
+) -> Result<Vec<u8>, TcprosError> {
+    read_limited(r, peer, MAX_FRAME, "frame").await
+}
+
+/// Reads one u32-length-prefixed block of at most `max` bytes; a larger
+/// length prefix is refused before reading or allocating the block.
+async fn read_limited<R: AsyncRead + Unpin>(
+    r: &mut R,
+    peer: &str,
+    max: usize,
+    what: &str,
 ) -> Result<Vec<u8>, TcprosError> {
     let io = |source| TcprosError::Io {
         peer: peer.into(),
@@ -94,10 +105,10 @@ pub async fn read_block<R: AsyncRead + Unpin>(
     let mut len = [0u8; 4];
     r.read_exact(&mut len).await.map_err(io)?;
     let n = u32::from_le_bytes(len) as usize;
-    if n > MAX_FRAME {
+    if n > max {
         return Err(TcprosError::Protocol {
             peer: peer.into(),
-            what: format!("length {n} too large"),
+            what: format!("{what} length {n} is larger than the {max} byte limit"),
         });
     }
     let mut buf = vec![0u8; n];
@@ -105,12 +116,12 @@ pub async fn read_block<R: AsyncRead + Unpin>(
     Ok(buf)
 }
 
-/// Reads and decodes a header.
+/// Reads and decodes a connection header (at most [`MAX_TCPROS_HEADER`]).
 pub async fn read_header<R: AsyncRead + Unpin>(
     r: &mut R,
     peer: &str,
 ) -> Result<Header, TcprosError> {
-    let b = read_block(r, peer).await?;
+    let b = read_limited(r, peer, MAX_TCPROS_HEADER, "header").await?;
     decode_header(&b).map_err(|what| TcprosError::Protocol {
         peer: peer.into(),
         what,
@@ -244,5 +255,60 @@ mod tests {
         let (mut a, mut b) = tokio::io::duplex(1024);
         write_frame(&mut a, b"hello", "t").await.unwrap();
         assert_eq!(read_block(&mut b, "t").await.unwrap(), b"hello");
+    }
+
+    #[tokio::test]
+    async fn headers_over_the_limit_are_refused_before_reading() {
+        let (mut a, mut b) = tokio::io::duplex(64);
+        let n = u32::try_from(MAX_TCPROS_HEADER + 1).unwrap();
+        a.write_all(&n.to_le_bytes()).await.unwrap();
+        let err = read_header(&mut b, "t").await.unwrap_err();
+        assert!(
+            err.to_string()
+                .contains("header length 1048577 is larger than the 1048576 byte limit"),
+            "{err}"
+        );
+    }
+
+    mod props {
+        use proptest::prelude::*;
+
+        use super::*;
+
+        proptest! {
+            #![proptest_config(ProptestConfig::with_cases(256))]
+
+            #[test]
+            fn headers_round_trip(h in prop::collection::btree_map("[^=]*", any::<String>(), 0..8)) {
+                let b = encode_header(&h);
+                prop_assert_eq!(decode_header(&b[4..]).unwrap(), h);
+            }
+
+            #[test]
+            fn any_bytes_decode_or_err_without_panicking(b in prop::collection::vec(any::<u8>(), 0..512)) {
+                if let Ok(h) = decode_header(&b) {
+                    // Every byte was used by a field: re-encoding is no longer.
+                    prop_assert!(encode_header(&h).len() <= b.len() + 4 || b.is_empty());
+                }
+            }
+
+            #[test]
+            fn read_header_accepts_exactly_what_fits(n in 0usize..(2 * MAX_TCPROS_HEADER)) {
+                let rt = tokio::runtime::Builder::new_current_thread().build().unwrap();
+                let r = rt.block_on(async {
+                    let (mut a, mut b) = tokio::io::duplex(64);
+                    a.write_all(&u32::try_from(n).unwrap().to_le_bytes()).await.unwrap();
+                    drop(a);
+                    read_header(&mut b, "t").await
+                });
+                match r {
+                    // Within the limit the length is accepted and reading
+                    // stops at the closed stream (or an empty header).
+                    Err(TcprosError::Io { .. }) => prop_assert!(n > 0 && n <= MAX_TCPROS_HEADER),
+                    Ok(h) => prop_assert!(n == 0 && h.is_empty()),
+                    Err(e) => prop_assert!(n > MAX_TCPROS_HEADER, "{}", e),
+                }
+            }
+        }
     }
 }

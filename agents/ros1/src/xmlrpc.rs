@@ -1,11 +1,16 @@
 //! A small XML-RPC codec: values, method calls and responses (including
 //! faults), enough for the ROS master, parameter server and slave APIs.
-//! Pure: bytes in, values out.
+//! Pure: bytes in, values out. Documents nested deeper than
+//! [`MAX_XML_DEPTH`] elements, or with more than [`MAX_XML_TOKENS`] tags and
+//! texts, are refused before any value is built, so the recursive decoder's
+//! stack and memory stay bounded whatever a peer sends.
 
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
 
 use serde::{Deserialize, Serialize};
+
+use crate::limits::{MAX_XML_DEPTH, MAX_XML_TOKENS};
 
 /// An XML-RPC value.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -40,6 +45,15 @@ impl Value {
         match self {
             Value::Array(a) => Some(a),
             _ => None,
+        }
+    }
+    /// How many values nest here: 1 for a scalar or an empty container.
+    /// Recursive; decoded values are bounded by [`MAX_XML_DEPTH`].
+    pub fn depth(&self) -> usize {
+        1 + match self {
+            Value::Array(a) => a.iter().map(Value::depth).max().unwrap_or(0),
+            Value::Struct(m) => m.values().map(Value::depth).max().unwrap_or(0),
+            _ => 0,
         }
     }
     pub fn str(s: impl Into<String>) -> Value {
@@ -237,7 +251,16 @@ fn tokenize(src: &str) -> Result<Vec<(usize, Tok)>, XmlRpcError> {
     let mut toks = Vec::new();
     let b = src.as_bytes();
     let mut i = 0;
+    // Open elements; a well-formed document never goes below zero, and the
+    // parser reports mismatched tags itself.
+    let mut depth = 0usize;
     while i < b.len() {
+        if toks.len() >= MAX_XML_TOKENS {
+            return Err(malformed(
+                i,
+                format!("more than {MAX_XML_TOKENS} tags and texts"),
+            ));
+        }
         if b[i] == b'<' {
             if src[i..].starts_with("<?") {
                 let e = src[i..]
@@ -266,10 +289,18 @@ fn tokenize(src: &str) -> Result<Vec<(usize, Tok)>, XmlRpcError> {
                     .ok_or_else(|| malformed(i, "unterminated tag"))?;
                 let inner = src[i + 1..i + e].trim();
                 let tok = if let Some(n) = inner.strip_prefix('/') {
+                    depth = depth.saturating_sub(1);
                     Tok::Close(n.trim().to_string())
                 } else if let Some(n) = inner.strip_suffix('/') {
                     Tok::Empty(tag_name(n))
                 } else {
+                    depth += 1;
+                    if depth > MAX_XML_DEPTH {
+                        return Err(malformed(
+                            i,
+                            format!("elements nested deeper than {MAX_XML_DEPTH}"),
+                        ));
+                    }
                     Tok::Open(tag_name(inner))
                 };
                 toks.push((i, tok));
@@ -567,5 +598,104 @@ mod tests {
         assert_eq!(decode_call(src).unwrap().params, vec![Value::str("  a  ")]);
         assert!(decode_call("<methodCall><methodName>x</methodName><params><param><value><i4>z</i4></value></param></params></methodCall>").is_err());
         assert!(decode_call("<foo/>").is_err());
+    }
+
+    mod props {
+        use proptest::prelude::*;
+
+        use super::*;
+
+        fn value() -> impl Strategy<Value = Value> {
+            let leaf = prop_oneof![
+                any::<i64>().prop_map(Value::Int),
+                any::<bool>().prop_map(Value::Bool),
+                any::<String>().prop_map(Value::Str),
+                (-1e300f64..1e300).prop_map(Value::Double),
+                "[0-9T:]{0,17}".prop_map(Value::DateTime),
+                "[A-Za-z0-9+/=]{0,24}".prop_map(Value::Base64),
+                Just(Value::Nil),
+            ];
+            leaf.prop_recursive(6, 48, 6, |inner| {
+                prop_oneof![
+                    prop::collection::vec(inner.clone(), 0..6).prop_map(Value::Array),
+                    prop::collection::btree_map(any::<String>(), inner, 0..6)
+                        .prop_map(Value::Struct),
+                ]
+            })
+        }
+
+        fn nested(depth: usize) -> String {
+            let mut s = String::from("<methodCall><methodName>m</methodName><params><param>");
+            s.push_str(&"<value><array><data>".repeat(depth));
+            s.push_str(&"</data></array></value>".repeat(depth));
+            s.push_str("</param></params></methodCall>");
+            s
+        }
+
+        proptest! {
+            #![proptest_config(ProptestConfig::with_cases(128))]
+
+            #[test]
+            fn calls_and_responses_round_trip(method in "[A-Za-z_.]{1,20}", params in prop::collection::vec(value(), 0..4)) {
+                let call = decode_call(&encode_call(&method, &params)).unwrap();
+                prop_assert_eq!(call, MethodCall { method, params: params.clone() });
+                let v = Value::Array(params);
+                let r = decode_response(&encode_response(&Response::Ok(v.clone()))).unwrap();
+                prop_assert_eq!(r, Response::Ok(v));
+            }
+
+            #[test]
+            fn any_text_decodes_or_errs_without_panicking(text in any::<String>(), tags in prop::collection::vec("</?(value|array|data|struct|member|name|string|i4|params|param|methodCall|methodName)/?>", 0..40)) {
+                let _ = decode_call(&text);
+                let _ = decode_response(&text);
+                let soup: String = tags.concat();
+                let _ = decode_call(&soup);
+                let _ = decode_response(&format!("<methodResponse>{soup}"));
+            }
+
+            #[test]
+            fn nesting_is_refused_exactly_past_the_limit(depth in 1usize..20_000) {
+                // methodCall, params, param, then three elements a level.
+                let elements = 3 + 3 * depth;
+                match decode_call(&nested(depth)) {
+                    Ok(c) => {
+                        prop_assert!(elements <= MAX_XML_DEPTH);
+                        prop_assert_eq!(c.params[0].depth(), depth);
+                    }
+                    Err(e) => {
+                        prop_assert!(elements > MAX_XML_DEPTH);
+                        prop_assert!(e.to_string().contains("nested deeper than"), "{}", e);
+                    }
+                }
+            }
+        }
+
+        #[test]
+        fn documents_with_too_many_tags_are_refused() {
+            let flat = |n: usize| {
+                format!(
+                    "<methodCall><methodName>m</methodName><params><param><value><array><data>{}</data></array></value></param></params></methodCall>",
+                    "<value/>".repeat(n)
+                )
+            };
+            // Ten tags around the values.
+            assert!(decode_call(&flat(MAX_XML_TOKENS - 100)).is_ok());
+            let err = decode_call(&flat(MAX_XML_TOKENS)).unwrap_err();
+            assert!(
+                err.to_string().contains("more than 500000 tags and texts"),
+                "{err}"
+            );
+        }
+
+        #[test]
+        fn the_deepest_allowed_document_decodes() {
+            let depth = (MAX_XML_DEPTH - 3) / 3;
+            assert_eq!(
+                decode_call(&nested(depth)).unwrap().params[0].depth(),
+                depth
+            );
+            assert!(decode_call(&nested(depth + 1)).is_err());
+            assert!(decode_call(&nested(200_000)).is_err());
+        }
     }
 }

@@ -205,7 +205,12 @@ async fn a_publisher_registering_during_placement_is_reached_through_the_adaptor
     let registered_rx = Mutex::new(registered_rx);
     let placement: Placement = Arc::new(move |_: &EdgeId, _: &[String]| {
         signal.notify_one();
-        let _ = registered_rx.lock().unwrap().recv_timeout(TIMEOUT);
+        // Hand this worker's queued tasks to another thread while blocking:
+        // the master's accept loop may be among them, and the publisher's
+        // registration must get through meanwhile.
+        tokio::task::block_in_place(|| {
+            let _ = registered_rx.lock().unwrap().recv_timeout(TIMEOUT);
+        });
         true
     });
     let f = start(Some(placement)).await;

@@ -432,7 +432,7 @@ fn roscpp_relay_gets_live_adaptor_insertion_and_removal() {
         return;
     }
     if !std::path::Path::new(RELAY).exists() {
-        eprintln!("SKIPPED: {RELAY} not found; install topic-tools");
+        common::skip(&format!("{RELAY} not found; install topic-tools"));
         return;
     }
     let a = start_agent(Duration::from_secs(30));

@@ -161,9 +161,7 @@ fn detector_under_limit(extra: &[&str], limited_from_start: bool) -> Option<Limi
         return None;
     }
     let Some(cg) = Cgroup::create(20_000) else {
-        eprintln!(
-            "SKIPPED: cannot create a cgroup under /sys/fs/cgroup/cpu (needs root, cgroup v1 cpu)"
-        );
+        skip("cannot create a cgroup under /sys/fs/cgroup/cpu (needs root, cgroup v1 cpu)");
         return None;
     };
     let m = Master::start(MasterKind::Configbot);

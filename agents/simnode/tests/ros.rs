@@ -1,7 +1,8 @@
 //! Real-process tests of the simnode against Debian's ROS 1 tools (rospy,
 //! rostopic, rosnode) and both masters (Debian's rosmaster and the agent's
 //! configbot-ros1 master). Each test runs its own master on a free port;
-//! all print `SKIPPED` and pass when ROS is not installed.
+//! all print `SKIPPED` and pass when ROS is not installed (and fail when
+//! CI=true or CONFIGBOT_REQUIRE=1).
 
 mod common;
 

@@ -1,9 +1,11 @@
 //! The control plane's HTTP API (axum): Kubernetes-style paths so stock
 //! `kubectl` works, plus `/metrics`. Served on a Unix socket (0600) by
-//! default; on TCP only over TLS with a bearer token.
+//! default; on TCP only over TLS with a bearer token. Request bodies, heads
+//! and idle connections are bounded by [`limits`].
 
 pub mod apply;
 pub mod discovery;
+pub mod limits;
 pub mod managed;
 pub mod openapi;
 pub mod patch;
@@ -28,8 +30,7 @@ use crate::metrics::Metrics;
 use crate::store::Store;
 use status::ApiError;
 
-/// Largest request body accepted (the same order as Kubernetes' 3 MiB object limit).
-pub const MAX_BODY_BYTES: usize = 3 * 1024 * 1024;
+pub use limits::MAX_BODY_BYTES;
 
 /// Shared state of every handler.
 #[derive(Debug, Clone)]
@@ -78,9 +79,9 @@ pub fn router(state: AppState) -> Router {
         .fallback(|| async {
             ApiError::NotFound("the server could not find the requested resource".into())
         })
-        .layer(middleware::from_fn_with_state(state.clone(), observe))
         .layer(DefaultBodyLimit::max(MAX_BODY_BYTES))
-        .layer(middleware::from_fn(body_limit_status))
+        .layer(middleware::from_fn(limits::bounded_body))
+        .layer(middleware::from_fn_with_state(state.clone(), observe))
         .with_state(state)
 }
 
@@ -99,18 +100,6 @@ async fn observe(State(s): State<AppState>, req: Request, next: Next) -> Respons
         .api_requests
         .with_label_values(&[verb.as_str(), resp.status().as_str()])
         .inc();
-    resp
-}
-
-/// Turn axum's plain 413 into a Kubernetes `Status`.
-async fn body_limit_status(req: Request, next: Next) -> Response {
-    let resp = next.run(req).await;
-    if resp.status() == StatusCode::PAYLOAD_TOO_LARGE {
-        return ApiError::PayloadTooLarge(format!(
-            "request body is larger than the {MAX_BODY_BYTES} byte limit"
-        ))
-        .into_response();
-    }
     resp
 }
 
@@ -160,7 +149,7 @@ pub async fn serve_unix(router: Router, path: &Path) -> std::io::Result<()> {
         tokio::net::UnixListener::bind(path)?
     };
     std::fs::set_permissions(path, std::fs::Permissions::from_mode(0o600))?;
-    axum::serve(listener, router).await
+    limits::serve(listener, router).await
 }
 
 /// Serve HTTPS on TCP; every request needs the bearer token.

@@ -129,6 +129,9 @@ impl PrivateRobot {
             agent_socket: None,
             cgroup_root: format!("configbot-demo-{}", std::process::id()),
             ros_master_uri: master_uri.clone(),
+            // A private robot: its master is for this host's nodes only.
+            ros_bind: "127.0.0.1".into(),
+            ros_adaptor_bind: configbot_ros1::DEFAULT_ADAPTOR_BIND.into(),
             no_ros: false,
             monitor: configbot_agent::cli::MonitorChoice::Auto,
             subtree_cpu_weight: cpu_weight,

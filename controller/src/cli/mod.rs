@@ -104,7 +104,9 @@ struct ServeArgs {
     /// Unix socket to serve on (mode 0600).
     #[arg(long, default_value = "/run/configbot/configbot.sock")]
     socket: PathBuf,
-    /// Also listen on HTTPS at this address, e.g. 127.0.0.1:8443 (requires --token-file).
+    /// Also listen on HTTPS at this address (requires --token-file), e.g.
+    /// 127.0.0.1:8443 for this host only or 0.0.0.0:8443 for every interface.
+    /// Without it the API is only on the Unix socket.
     #[arg(long, requires = "token_file")]
     listen: Option<String>,
     /// File holding the bearer token TCP clients must send.
@@ -132,6 +134,16 @@ pub struct RobotArgs {
     /// With --agent: the robot's ROS_MASTER_URI, served by the agent.
     #[arg(long, default_value = "http://localhost:11311/")]
     pub ros_master_uri: String,
+    /// With --agent: address the ROS master listens on. The default, every
+    /// interface, is what rosmaster does, so nodes on other hosts can
+    /// register; 127.0.0.1 keeps it to this host.
+    #[arg(long, default_value = configbot_ros1::DEFAULT_MASTER_BIND)]
+    pub ros_bind: String,
+    /// With --agent: address the ROS rate adaptors (slave XML-RPC and TCPROS)
+    /// listen on; adapted subscribers on this host reach them at localhost,
+    /// so the default is loopback.
+    #[arg(long, default_value = configbot_ros1::DEFAULT_ADAPTOR_BIND)]
+    pub ros_adaptor_bind: String,
     /// With --agent: no ROS data plane (CPU knobs only).
     #[arg(long)]
     pub no_ros: bool,

@@ -25,6 +25,8 @@ pub fn runtime_options(dir: &Path, args: &RobotArgs) -> anyhow::Result<RuntimeOp
         ros: (!args.no_ros).then(|| RosOptions {
             config: configbot_ros1::Ros1Config {
                 master_uri: args.ros_master_uri.clone(),
+                bind_host: args.ros_bind.clone(),
+                adaptor_bind_host: args.ros_adaptor_bind.clone(),
                 ..configbot_ros1::Ros1Config::default()
             },
             db_path: dir.join("ros1.db"),

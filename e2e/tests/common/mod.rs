@@ -170,6 +170,13 @@ impl Robot {
         }
     }
 
+    /// Whether the server process is still running.
+    pub fn server_running(&mut self) -> bool {
+        self.server
+            .as_mut()
+            .is_some_and(|c| matches!(c.try_wait(), Ok(None)))
+    }
+
     /// The server's stderr so far.
     pub fn server_log(&self) -> String {
         std::fs::read_to_string(self.dir.path().join("server.log")).unwrap_or_default()

@@ -1,5 +1,6 @@
 //! Shared test helpers: unique cgroup subtrees, a guard that kills every
-//! process in them and removes them on drop, event waiting, raw HTTP.
+//! process in them and removes them on drop, event waiting, raw HTTP, and
+//! [`skip`] (a failure under CI).
 #![allow(dead_code)]
 
 pub mod rt;
@@ -11,6 +12,19 @@ use std::time::{Duration, Instant};
 
 use configbot_agent::{Agent, AgentEvent, AgentSettings, ConfigUpdate, StackSpec};
 use configbot_cgroups::{CgroupBackend, CpuLimit, Layout, NodeName, SubtreeRoot, V1Backend};
+
+/// Says why a test cannot run on this machine and lets it pass, unless
+/// `CI=true` or `CONFIGBOT_REQUIRE=1` is set: then a missing prerequisite
+/// fails the test instead of skipping it silently.
+pub fn skip(why: &str) {
+    let required = std::env::var("CI").is_ok_and(|v| v == "true")
+        || std::env::var("CONFIGBOT_REQUIRE").is_ok_and(|v| v == "1");
+    assert!(
+        !required,
+        "cannot run: {why} (CI=true or CONFIGBOT_REQUIRE=1 makes a skip a failure)"
+    );
+    eprintln!("SKIPPED: {why}");
+}
 
 static COUNTER: AtomicU32 = AtomicU32::new(0);
 

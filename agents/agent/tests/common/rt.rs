@@ -20,12 +20,13 @@ use configbot_ros1::Ros1Config;
 
 use super::{nuke, unique_root, v1_backend};
 
-/// True when Debian's ROS 1 is installed; otherwise says why the test skips.
+/// True when Debian's ROS 1 is installed; otherwise says why the test skips
+/// (fails under CI: [`super::skip`]).
 pub fn ros_available() -> bool {
     let ok = Path::new("/usr/bin/rostopic").exists();
     if !ok {
-        eprintln!(
-            "SKIPPED: /usr/bin/rostopic not found; apt-get install ros-core python3-rospy python3-rostopic"
+        super::skip(
+            "/usr/bin/rostopic not found; apt-get install ros-core python3-rospy python3-rostopic",
         );
     }
     ok

@@ -1,4 +1,5 @@
-//! Shared helpers of the ROS 1 integration tests: skip when ROS is absent,
+//! Shared helpers of the ROS 1 integration tests: skip when ROS is absent
+//! (fail under CI),
 //! free ports, process guards that kill whole process groups, line readers
 //! that timestamp a child's stdout, and condition waits with timeouts.
 
@@ -12,17 +13,30 @@ use std::sync::atomic::{AtomicU32, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
-/// True when Debian's ROS 1 tools are installed; otherwise prints why the
-/// test is skipped. CI installs them (see the crate README), so there the
-/// tests always run.
+/// True when Debian's ROS 1 tools are installed; otherwise says why the
+/// test is skipped. CI installs them (see the crate README), and there a
+/// missing tool fails the test ([`skip`]).
 pub fn ros_available() -> bool {
     let ok = Path::new("/usr/bin/rostopic").exists() || which("rostopic");
     if !ok {
-        eprintln!(
-            "SKIPPED: `rostopic` not found; install ros-core python3-rospy python3-rostopic python3-rosnode python3-rosparam python3-roslaunch topic-tools"
+        skip(
+            "`rostopic` not found; install ros-core python3-rospy python3-rostopic python3-rosnode python3-rosparam python3-roslaunch topic-tools",
         );
     }
     ok
+}
+
+/// Says why a test cannot run on this machine and lets it pass, unless
+/// `CI=true` or `CONFIGBOT_REQUIRE=1` is set: then a missing prerequisite
+/// fails the test instead of skipping it silently.
+pub fn skip(why: &str) {
+    let required = std::env::var("CI").is_ok_and(|v| v == "true")
+        || std::env::var("CONFIGBOT_REQUIRE").is_ok_and(|v| v == "1");
+    assert!(
+        !required,
+        "cannot run: {why} (CI=true or CONFIGBOT_REQUIRE=1 makes a skip a failure)"
+    );
+    eprintln!("SKIPPED: {why}");
 }
 
 fn which(bin: &str) -> bool {

@@ -1,4 +1,5 @@
-//! Shared helpers of the simnode integration tests: skip when ROS is absent,
+//! Shared helpers of the simnode integration tests: skip when ROS is absent
+//! (fail under CI),
 //! free ports, masters (Debian's rosmaster or the in-process configbot-ros1
 //! master), child processes in their own process groups (killed on drop)
 //! whose stdout lines are timestamped, and condition waits with timeouts.
@@ -13,8 +14,8 @@ use std::sync::atomic::{AtomicU32, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
-/// True when Debian's ROS 1 tools are installed; otherwise prints why the
-/// test is skipped.
+/// True when Debian's ROS 1 tools are installed; otherwise says why the
+/// test is skipped ([`skip`]: a failure under CI).
 pub fn ros_available() -> bool {
     let ok = [
         "/usr/bin/rostopic",
@@ -29,11 +30,24 @@ pub fn ros_available() -> bool {
             .status()
             .is_ok_and(|s| s.success());
     if !ok {
-        eprintln!(
-            "SKIPPED: ROS 1 tools or rospy missing; apt-get install -y ros-core python3-rospy python3-rostopic python3-rosnode python3-rosparam python3-roslaunch topic-tools"
+        skip(
+            "ROS 1 tools or rospy missing; apt-get install -y ros-core python3-rospy python3-rostopic python3-rosnode python3-rosparam python3-roslaunch topic-tools",
         );
     }
     ok
+}
+
+/// Says why a test cannot run on this machine and lets it pass, unless
+/// `CI=true` or `CONFIGBOT_REQUIRE=1` is set: then a missing prerequisite
+/// fails the test instead of skipping it silently.
+pub fn skip(why: &str) {
+    let required = std::env::var("CI").is_ok_and(|v| v == "true")
+        || std::env::var("CONFIGBOT_REQUIRE").is_ok_and(|v| v == "1");
+    assert!(
+        !required,
+        "cannot run: {why} (CI=true or CONFIGBOT_REQUIRE=1 makes a skip a failure)"
+    );
+    eprintln!("SKIPPED: {why}");
 }
 
 /// A free TCP port (never 11311).
