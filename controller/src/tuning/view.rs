@@ -70,12 +70,15 @@ pub fn trials_view(obj: &Value) -> String {
         .into_iter()
         .flatten()
         .map(|k| {
-            format!(
-                "{} [{}, {}]",
-                k["name"].as_str().unwrap_or("?"),
-                num(&k["min"], 2),
-                num(&k["max"], 2)
-            )
+            let name = k["name"].as_str().unwrap_or("?");
+            if k["pinnedAt"].is_number() {
+                format!(
+                    "{name} = {} (pinned: feeds no metric)",
+                    num(&k["pinnedAt"], 2)
+                )
+            } else {
+                format!("{name} [{}, {}]", num(&k["min"], 2), num(&k["max"], 2))
+            }
         })
         .collect();
     if !knobs.is_empty() {
@@ -154,7 +157,8 @@ mod tests {
             "metadata": {"name": "nav"},
             "spec": {"metrics": [{"name": "cmd-vel"}, {"name": "det"}]},
             "status": {"phase": "Tuning", "trials": 2, "maxTrials": 4, "satisfaction": 0.5,
-                "knobs": [{"name": "cpu:/det", "min": 0.05, "max": 2.0}],
+                "knobs": [{"name": "cpu:/det", "min": 0.05, "max": 2.0},
+                          {"name": "cpu:/debug", "min": 0.05, "max": 2.0, "pinnedAt": 0.05}],
                 "baseline": {"index": 0, "config": {}, "values": {"cmd-vel": 18.8, "det": 20.0},
                              "satisfaction": 0.0, "objective": 1.0, "feasible": false},
                 "trialHistory": [
@@ -170,7 +174,10 @@ mod tests {
             lines[0],
             "nav: Tuning  trials 2/4 [##########..........]  satisfaction 50.0%"
         );
-        assert_eq!(lines[1], "knobs: cpu:/det [0.05, 2.00]");
+        assert_eq!(
+            lines[1],
+            "knobs: cpu:/det [0.05, 2.00], cpu:/debug = 0.05 (pinned: feeds no metric)"
+        );
         assert!(lines[2].starts_with("TRIAL"), "{v}");
         assert!(lines[2].contains("CMD-VEL"), "{v}");
         assert!(lines[3].starts_with("baseline"), "{v}");
