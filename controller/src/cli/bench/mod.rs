@@ -30,9 +30,10 @@ use self::owner::Current;
 use super::demo::{
     PrivateRobot, example, histogram_chart, measure_defs, print_eval, print_trial, settled,
 };
-use crate::tuning::knobs;
+use crate::tuning::knobs::{self, KnobSpace};
 use crate::tuning::measure::{self, Evaluation, MetricDef};
 use crate::tuning::robot::Robot;
+use crate::tuning::startup::flowing;
 
 #[derive(Debug, Args)]
 pub struct BenchArgs {
@@ -484,12 +485,27 @@ pub(super) async fn wait_until_up(
     }
 }
 
-/// The metrics whose probe saw messages in `r` (pure).
-fn flowing(defs: &[MetricDef], r: &configbot_agent::measure::MeasureReport) -> Vec<String> {
-    defs.iter()
-        .filter(|d| r.series.iter().any(|s| s.probe == d.probe && s.mean > 0.0))
-        .map(|d| d.name.clone())
-        .collect()
+/// The knob space a tuning run would derive on the robot as it runs now:
+/// from its live graph and every topic's rate over 2 s.
+pub(super) async fn live_space(
+    robot: &dyn Robot,
+    stack: &RobotStack,
+    spec: &PerformanceSpec,
+) -> anyhow::Result<KnobSpace> {
+    let graph = robot.graph().await?;
+    let topics: Vec<String> = graph.topics.keys().cloned().collect();
+    let rates = measure::topic_rates(
+        &robot
+            .measure(&measure::request(&[], &topics, 2000, 1000))
+            .await?,
+    );
+    Ok(knobs::derive(
+        &stack.spec,
+        &spec.spec,
+        &graph,
+        &rates,
+        stack.spec.robot.cpus.unwrap_or(2.0),
+    )?)
 }
 
 fn result(
@@ -535,25 +551,7 @@ async fn untuned(
         let mut out = Vec::new();
         let r = measure_defs(robot.robot.as_ref(), defs, window).await?;
         out.push(result(name, "default", defs, &r, Value::Null, None));
-        let graph = robot.robot.graph().await?;
-        let rates = measure::topic_rates(
-            &robot
-                .robot
-                .measure(&measure::request(
-                    &[],
-                    &graph.topics.keys().cloned().collect::<Vec<_>>(),
-                    2000,
-                    1000,
-                ))
-                .await?,
-        );
-        let space = knobs::derive(
-            &stack.spec,
-            &spec.spec,
-            &graph,
-            &rates,
-            stack.spec.robot.cpus.unwrap_or(2.0),
-        )?;
+        let space = live_space(robot.robot.as_ref(), stack, spec).await?;
         let mut rng = configbot_optimizer::rng::Rng::seed_from_u64(a.seed);
         for i in 0..random {
             let x: Vec<f64> = space

@@ -26,7 +26,7 @@ use serde_json::Value;
 use super::owner::Current;
 use super::{BenchArgs, FLOW_TIMEOUT, MethodResult, result, start, tuned, wait_until_up};
 use crate::cli::demo::{example, measure_defs};
-use crate::tuning::knobs::{self, KnobSpace};
+use crate::tuning::knobs::KnobSpace;
 use crate::tuning::measure::{self, MetricDef};
 use crate::tuning::robot::Robot;
 use crate::tuning::settle;
@@ -266,19 +266,7 @@ async fn oracle(
     let robot = start(cur, &a.out, name, "oracle", stack, defs).await?;
     let out = async {
         let r = robot.robot.as_ref();
-        let graph = r.graph().await?;
-        let topics: Vec<String> = graph.topics.keys().cloned().collect();
-        let rates = measure::topic_rates(
-            &r.measure(&measure::request(&[], &topics, 3000, 1000))
-                .await?,
-        );
-        let space = knobs::derive(
-            &stack.spec,
-            &spec.spec,
-            &graph,
-            &rates,
-            stack.spec.robot.cpus.unwrap_or(2.0),
-        )?;
+        let space = super::live_space(r, stack, spec).await?;
         let points = oracle_points(&space, p.oracle_configs, a.seed);
         let mut configs = Vec::new();
         for (i, x) in points.iter().enumerate() {
@@ -416,6 +404,7 @@ pub fn summary(defs_of: &dyn Fn(&str) -> Vec<MetricDef>, rows: &[MethodResult]) 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::tuning::knobs;
 
     fn row(stack: &str, method: &str, sat: f64, det: f64) -> MethodResult {
         MethodResult {
