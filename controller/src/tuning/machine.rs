@@ -112,7 +112,7 @@ pub enum Candidate {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "state", rename_all = "camelCase")]
 pub enum State {
-    /// Wait until the stack's declared nodes are registered and its metrics'
+    /// Wait until the nodes the stack starts are registered and its metrics'
     /// topics flow, or the start-up timeout passed; then observe.
     StartUp {
         trigger: Trigger,
@@ -934,7 +934,7 @@ fn startup_step(
                     format!(
                         "after {secs:.0} s: {}{}; going on with the stack as it is",
                         if missing.is_empty() {
-                            "every declared node registered".to_string()
+                            "every node the stack starts registered".to_string()
                         } else {
                             format!("never registered: {}", missing.join(", "))
                         },
@@ -949,7 +949,7 @@ fn startup_step(
                 out.push(normal(
                     "StackUp",
                     format!(
-                        "every declared node registered and {} after {secs:.0} s",
+                        "every node the stack starts registered and {} after {secs:.0} s",
                         if silent.is_empty() {
                             "every metric's topic flows".to_string()
                         } else {

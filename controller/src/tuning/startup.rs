@@ -3,8 +3,8 @@
 //! model; a lazy opencv_apps node subscribes only once its output has a
 //! subscriber), and a baseline measured before that reads 0 Hz: a run on a
 //! real stack declared Unsat within 5 s of apply, after 0 trials, from an
-//! empty graph. So a run first waits until every node the stack declares is
-//! in the graph and every metric's topic has delivered messages (the core
+//! empty graph. So a run first waits until every node the stack starts
+//! (`run`) is in the graph and every metric's topic has delivered messages (the core
 //! ones at least; the non-core ones get [`NON_CORE_GRACE_MS`] more, since a
 //! default config may starve them for good), or until the spec's
 //! `startupTimeoutSeconds`, after which it goes on and says which nodes never
@@ -46,11 +46,15 @@ pub enum Wait {
     },
 }
 
-/// The nodes `stack` declares that `graph` does not have, in stack order.
+/// The nodes `stack` has the agent start (`run`) that `graph` does not
+/// have, in stack order. A `match` node is adopted when something else
+/// starts it and may be absent on purpose (an app of another context), so
+/// the run does not wait for it.
 pub fn missing(stack: &RobotStack, graph: &Graph) -> Vec<String> {
     stack
         .spec
         .nodes()
+        .filter(|(_, n)| n.run.is_some())
         .map(|(_, n)| n.name.clone())
         .filter(|n| !graph.nodes.contains_key(n))
         .collect()
@@ -128,5 +132,22 @@ mod tests {
         assert!(core_up(&d, &set(&["cmd"])));
         assert!(!core_up(&d, &set(&["det"])));
         assert_eq!(silent(&d, &set(&["cmd"])), vec!["det"]);
+    }
+}
+
+#[cfg(test)]
+mod missing_tests {
+    use super::*;
+
+    #[test]
+    fn only_nodes_the_agent_starts_are_waited_for() {
+        let stack: RobotStack = serde_json::from_value(serde_json::json!({
+            "apiVersion": "configbot.dev/v1alpha1", "kind": "RobotStack", "metadata": {"name": "s"},
+            "spec": {"apps": [{"name": "a", "nodes": [
+                {"name": "/started", "run": {"command": "x"}},
+                {"name": "/adopted", "match": {"rosNode": "/adopted"}}]}]}
+        }))
+        .unwrap();
+        assert_eq!(missing(&stack, &Graph::default()), vec!["/started"]);
     }
 }
