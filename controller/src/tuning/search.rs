@@ -127,6 +127,26 @@ pub(crate) fn baseline_done(
         };
     }
     if run.knobs.knobs.is_empty() {
+        // Nothing to search, but pinning the nodes that feed no metric is a
+        // config of its own: measured (as the restrictive corner) when the
+        // baseline misses, so the verdict rests on it, not on the baseline.
+        if !rec.feasible() && !run.knobs.pinned.is_empty() {
+            out.push(normal(
+                "FeasibilityFirst",
+                "the baseline misses a core target: measuring the config with the nodes that feed no metric at their minimum"
+                    .to_string(),
+            ));
+            run.corner_trial = Some(run.trials.len());
+            let config = run.knobs.to_config(&[]);
+            return drain_first(
+                run,
+                env,
+                State::TrialApply {
+                    x: Vec::new(),
+                    config,
+                },
+            );
+        }
         return finish(run, env, defs, out);
     }
     let problem = match problem(&run.knobs, defs, env) {

@@ -579,3 +579,34 @@ fn a_trial_near_the_boundary_is_measured_longer_not_discarded() {
     assert_eq!(reasons(&out), vec!["Trial", "Unsat"], "the corner missed");
     assert!(!run.trials[0].feasible());
 }
+
+#[test]
+fn with_every_knob_pinned_the_pinned_config_is_measured_before_a_verdict() {
+    let st = stack();
+    let mut sp = spec(0.0, 20);
+    // No metric on the detector's output: the whole det app feeds no metric.
+    sp.spec.metrics.retain(|m| m.name != "det");
+    let env = env(&st, &sp);
+    let (run, out) = step(
+        with(State::Baseline {
+            graph: graph(),
+            prior: None,
+        }),
+        report(&BAD, 5.0),
+        &env,
+    );
+    assert!(run.knobs.knobs.is_empty() && !run.knobs.pinned.is_empty());
+    assert_eq!(reasons(&out), vec!["Baseline", "FeasibilityFirst"]);
+    let State::TrialApply { config, .. } = &run.state else {
+        panic!("{:?}", run.state)
+    };
+    assert_eq!(config.cpu["/detector"], 0.05);
+    let (run, _) = step(run, Input::Applied, &env);
+    let (run, out) = step(run, report(&OK, 5.0), &env);
+    assert_eq!(
+        reasons(&out),
+        vec!["Trial", "ObjectivesCapped"],
+        "no objectives"
+    );
+    assert_eq!(name(&run.state), "VerifyApply");
+}
