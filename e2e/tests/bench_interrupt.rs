@@ -80,7 +80,7 @@ fn interrupt_when(
         .ok()
         .and_then(|l| l.v1_cpu)
     else {
-        eprintln!("no cgroup v1 cpu hierarchy: skipped");
+        common::skip("no cgroup v1 cpu hierarchy");
         return;
     };
     let _serial = common::serial();

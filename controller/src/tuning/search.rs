@@ -131,21 +131,8 @@ pub(crate) fn baseline_done(
         // config of its own: measured (as the restrictive corner) when the
         // baseline misses, so the verdict rests on it, not on the baseline.
         if !rec.feasible() && !run.knobs.pinned.is_empty() {
-            out.push(normal(
-                "FeasibilityFirst",
-                "the baseline misses a core target: measuring the config with the nodes that feed no metric at their minimum"
-                    .to_string(),
-            ));
-            run.corner_trial = Some(run.trials.len());
-            let config = run.knobs.to_config(&[]);
-            return drain_first(
-                run,
-                env,
-                State::TrialApply {
-                    x: Vec::new(),
-                    config,
-                },
-            );
+            let what = "the config with the nodes that feed no metric at their minimum";
+            return corner_first(run, env, &[], what, out);
         }
         return finish(run, env, defs, out);
     }
@@ -214,18 +201,29 @@ pub(crate) fn baseline_done(
         && !warm
         && let Some(corner) = run.knobs.restrictive_corner(&rec.x)
     {
-        out.push(normal(
-            "FeasibilityFirst",
-            "the baseline misses a core target: measuring the most restrictive config first \
-             (every non-core knob at its minimum)"
-                .to_string(),
-        ));
-        run.corner_trial = Some(run.trials.len());
-        let config = run.knobs.to_config(&corner);
-        let x = run.knobs.from_config(&config);
-        return drain_first(run, env, State::TrialApply { x, config });
+        let what = "the most restrictive config first (every non-core knob at its minimum)";
+        return corner_first(run, env, &corner, what, out);
     }
     next_trial(run, env, defs, out)
+}
+
+/// The restrictive corner `corner` as the run's next trial, remembered as
+/// the one whose failure ends the run Unsat (see [`next_trial`]).
+fn corner_first(
+    run: &mut Run,
+    env: &Env<'_>,
+    corner: &[f64],
+    what: &str,
+    out: &mut Vec<Output>,
+) -> State {
+    out.push(normal(
+        "FeasibilityFirst",
+        format!("the baseline misses a core target: measuring {what}"),
+    ));
+    run.corner_trial = Some(run.trials.len());
+    let config = run.knobs.to_config(corner);
+    let x = run.knobs.from_config(&config);
+    drain_first(run, env, State::TrialApply { x, config })
 }
 
 /// Whether every core constraint of the baseline is on the safe side of the

@@ -495,6 +495,19 @@ pub fn rfc3339_secs(t: &str) -> Option<u64> {
     u64::try_from(days * 86_400 + h[0] * 3600 + h[1] * 60 + h[2]).ok()
 }
 
+/// Says why a test cannot run on this machine and lets it pass, unless
+/// `CI=true` or `CONFIGBOT_REQUIRE=1` is set: then a missing prerequisite
+/// fails the test instead of skipping it silently.
+pub fn skip(why: &str) {
+    let required = std::env::var("CI").is_ok_and(|v| v == "true")
+        || std::env::var("CONFIGBOT_REQUIRE").is_ok_and(|v| v == "1");
+    assert!(
+        !required,
+        "cannot run: {why} (CI=true or CONFIGBOT_REQUIRE=1 makes a skip a failure)"
+    );
+    eprintln!("SKIPPED: {why}");
+}
+
 fn kill9(pid: u32) {
     let Ok(pid) = libc::pid_t::try_from(pid) else {
         return;
