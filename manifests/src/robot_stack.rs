@@ -59,6 +59,23 @@ pub struct App {
     pub core: bool,
     /// The app's ROS nodes; at least one.
     pub nodes: Vec<Node>,
+    /// Subscriptions of another app's node that only this app's work
+    /// consumes: the input of this app's nodelets in a nodelet manager it
+    /// shares with a core app, or of its callbacks in a shared executor. A
+    /// CPU limit on that process would slow the core app too; an adaptor on
+    /// such an input throttles only this app. Non-core apps only.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub inputs: Vec<AppInput>,
+}
+
+/// One subscription edge, `topic` into `node`, claimed by an app (see [`App::inputs`]).
+#[derive(Debug, Clone, PartialEq, Eq, PartialOrd, Ord, Serialize, Deserialize, JsonSchema)]
+#[serde(rename_all = "camelCase", deny_unknown_fields)]
+pub struct AppInput {
+    /// The subscribing ROS node (declared in another app of this stack).
+    pub node: String,
+    /// The topic it subscribes to, on this app's behalf.
+    pub topic: String,
 }
 
 /// One ROS node (one Linux process): either started by the agent (`run`) or

@@ -235,6 +235,42 @@ fn robot_stack(e: &mut Errors, s: &RobotStack) {
             }
         }
     }
+    app_inputs(e, spec, &node_names);
+}
+
+/// `apps[].inputs`: only non-core apps claim inputs, of a declared node of
+/// another app, on an absolute topic.
+fn app_inputs(
+    e: &mut Errors,
+    spec: &crate::robot_stack::RobotStackSpec,
+    node_names: &BTreeMap<&str, String>,
+) {
+    for (i, app) in spec.apps.iter().enumerate() {
+        for (j, input) in app.inputs.iter().enumerate() {
+            let ip = format!("spec.apps[{i}].inputs[{j}]");
+            if app.core {
+                e.add(
+                    ip.clone(),
+                    "only a non-core app claims inputs (a core app's inputs are never throttled)",
+                );
+            }
+            e.check(format!("{ip}.topic"), check_ros_name(&input.topic));
+            match node_names.get(input.node.as_str()) {
+                None => e.add(
+                    format!("{ip}.node"),
+                    format!("{:?} is not a node of this stack", input.node),
+                ),
+                Some(_) if app.nodes.iter().any(|n| n.name == input.node) => e.add(
+                    format!("{ip}.node"),
+                    format!(
+                        "{:?} is this app's own node: its inputs are this app's already",
+                        input.node
+                    ),
+                ),
+                Some(_) => {}
+            }
+        }
+    }
 }
 
 fn first_line(s: &str) -> String {

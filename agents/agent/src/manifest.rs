@@ -24,6 +24,15 @@ impl StackSpec {
             apps.push(AppSpec {
                 name: app.name.clone(),
                 nodes,
+                inputs: app
+                    .inputs
+                    .iter()
+                    .filter(|_| !app.core)
+                    .map(|i| configbot_dataplane::EdgeId {
+                        topic: i.topic.clone(),
+                        subscriber: i.node.clone(),
+                    })
+                    .collect(),
             });
         }
         let spec = StackSpec { apps };

@@ -77,8 +77,8 @@ pub struct NodeRuntime {
 struct Inner {
     agent: Agent,
     dp: Option<Arc<Ros1DataPlane>>,
-    /// ROS node name → core, read by the adaptor placement.
-    apps: Arc<RwLock<BTreeMap<String, bool>>>,
+    /// The stack's apps as the adaptor placement reads them.
+    apps: Arc<RwLock<AppMap>>,
     events: broadcast::Sender<RuntimeEvent>,
     monitor: Mutex<Option<MonitorHandle>>,
     monitor_status: String,
@@ -116,17 +116,57 @@ pub(crate) fn unix_ms() -> u64 {
         .map_or(0, |d| u64::try_from(d.as_millis()).unwrap_or(u64::MAX))
 }
 
-/// ROS name → core flag of every node tied to a ROS name.
-fn app_map(stack: &StackSpec) -> BTreeMap<String, bool> {
-    let mut m = BTreeMap::new();
+/// What the adaptor placement needs of the stack: the core flag of every
+/// node tied to a ROS name, and the inputs non-core apps claim.
+#[derive(Debug, Default)]
+struct AppMap {
+    core: BTreeMap<String, bool>,
+    claimed: std::collections::BTreeSet<configbot_dataplane::EdgeId>,
+}
+
+impl AppOf for AppMap {
+    fn is_core(&self, node: &str) -> Option<bool> {
+        self.core.get(node).copied()
+    }
+    fn claims(&self, edge: &configbot_dataplane::EdgeId) -> bool {
+        self.claimed.contains(edge)
+    }
+}
+
+/// The placement's live view of [`AppMap`], replaced on `set_stack_spec`.
+struct LiveApps(Arc<RwLock<AppMap>>);
+
+impl AppOf for LiveApps {
+    fn is_core(&self, node: &str) -> Option<bool> {
+        self.0
+            .read()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .is_core(node)
+    }
+    fn claims(&self, edge: &configbot_dataplane::EdgeId) -> bool {
+        self.0
+            .read()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .claims(edge)
+    }
+}
+
+/// [`AppMap`] of `stack`.
+fn app_map(stack: &StackSpec) -> AppMap {
+    let mut m = AppMap::default();
     for (_, n) in stack.nodes() {
-        m.insert(n.name.as_str().to_owned(), n.core);
+        m.core.insert(n.name.as_str().to_owned(), n.core);
         if let NodeSource::Match(mm) = &n.source
             && let Some(r) = &mm.ros_node
         {
-            m.insert(r.clone(), n.core);
+            m.core.insert(r.clone(), n.core);
         }
     }
+    m.claimed = stack
+        .apps
+        .iter()
+        .flat_map(|a| a.inputs.iter().cloned())
+        .collect();
     m
 }
 
@@ -160,13 +200,7 @@ impl NodeRuntime {
         let dp = match opts.ros {
             None => None,
             Some(ros) => {
-                let map = apps.clone();
-                let of: Arc<dyn AppOf + Send + Sync> = Arc::new(move |n: &str| {
-                    map.read()
-                        .unwrap_or_else(std::sync::PoisonError::into_inner)
-                        .get(n)
-                        .copied()
-                });
+                let of: Arc<dyn AppOf + Send + Sync> = Arc::new(LiveApps(apps.clone()));
                 let mut cfg = ros.config;
                 cfg.placement = Some(placement_from_apps(of, ros.policy));
                 let master_uri = cfg.master_uri.clone();
@@ -227,7 +261,7 @@ impl NodeRuntime {
     fn assemble(
         agent: Agent,
         dp: Option<Arc<Ros1DataPlane>>,
-        apps: Arc<RwLock<BTreeMap<String, bool>>>,
+        apps: Arc<RwLock<AppMap>>,
         registry: Registry,
         monitor: Option<MonitorHandle>,
     ) -> Result<Self> {
@@ -557,8 +591,9 @@ mod tests {
         )
         .unwrap();
         let m = app_map(&s);
-        assert_eq!(m.get("/t"), Some(&true));
-        assert_eq!(m.get("/listener"), Some(&false));
+        assert_eq!(m.is_core("/t"), Some(true));
+        assert_eq!(m.is_core("/listener"), Some(false));
+        assert!(m.claimed.is_empty());
         let s = with_master_uri(s, Some("http://localhost:5/"));
         let env = |i: usize| match &s.apps[0].nodes[i].source {
             NodeSource::Run(r) => r.env.get("ROS_MASTER_URI").cloned(),

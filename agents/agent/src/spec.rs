@@ -21,6 +21,10 @@ pub struct StackSpec {
 pub struct AppSpec {
     pub name: String,
     pub nodes: Vec<NodeSpec>,
+    /// Inputs of other apps' nodes this (non-core) app claims: adaptors are
+    /// placed on them as on its own inputs (the manifest's `apps[].inputs`).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub inputs: Vec<configbot_dataplane::EdgeId>,
 }
 
 /// One ROS node: how the agent gets its process.

@@ -156,6 +156,7 @@ mod tests {
         StackSpec {
             apps: vec![AppSpec {
                 name: "a".into(),
+                inputs: Vec::new(),
                 nodes: names
                     .iter()
                     .map(|(n, core)| NodeSpec {

@@ -13,6 +13,12 @@ pub trait AppOf {
     /// app, `None` for a node of no known app (treated as core: never adapted
     /// on its own account).
     fn is_core(&self, node: &str) -> Option<bool>;
+    /// Whether a non-core app claims `edge`, an input of another app's node
+    /// (a shared nodelet manager's subscription that only it consumes): it is
+    /// adapted as that app's own inputs are.
+    fn claims(&self, _edge: &EdgeId) -> bool {
+        false
+    }
 }
 
 impl<F: Fn(&str) -> Option<bool>> AppOf for F {
@@ -49,6 +55,16 @@ impl EdgeSelector {
     pub fn matches(&self, e: &EdgeId) -> bool {
         self.topic == e.topic && self.subscriber.as_ref().is_none_or(|s| *s == e.subscriber)
     }
+}
+
+/// Message types that carry liveness, not data: an adaptor that thins them
+/// breaks the protocol (a nodelet whose bond heartbeats, `bond/Status`, stop
+/// arriving is unloaded by its manager). Never adapted, even when included.
+pub const NEVER_ADAPTED_TYPES: [&str; 1] = ["bond/Status"];
+
+/// Whether edges of messages of type `msg_type` may be adapted at all.
+pub fn adaptable_type(msg_type: &str) -> bool {
+    !NEVER_ADAPTED_TYPES.contains(&msg_type)
 }
 
 /// Policy knobs.
@@ -102,10 +118,10 @@ pub fn select_adaptor_edges(
                 topic: t.name.clone(),
                 subscriber: sub.clone(),
             };
-            if cfg.excluded(&id) || t.publishers.is_empty() {
+            if cfg.excluded(&id) || t.publishers.is_empty() || !adaptable_type(&t.msg_type) {
                 continue;
             }
-            if cfg.included(&id) {
+            if cfg.included(&id) || apps.claims(&id) {
                 out.insert(id);
                 continue;
             }
@@ -221,6 +237,27 @@ mod tests {
         };
         let sel = select_adaptor_edges(&g(), &rates(), &apps, &cfg);
         assert!(sel.contains(&e("/slow", "/detector")), "topic-wide include");
+    }
+
+    /// Bond heartbeats between a nodelet manager and its loaders are fast
+    /// and touch non-core loaders, but thinning them unloads the nodelet.
+    #[test]
+    fn liveness_topics_are_never_adapted_even_when_included() {
+        let mut graph = g();
+        let mut bond = graph.topics["/camera"].clone();
+        bond.name = "/vision/bond".into();
+        bond.msg_type = "bond/Status".into();
+        graph.topics.insert(bond.name.clone(), bond);
+        let mut rates = rates();
+        rates.insert("/vision/bond".into(), 10.0);
+        let cfg = PolicyConfig {
+            include: vec![EdgeSelector::topic("/vision/bond")],
+            ..PolicyConfig::default()
+        };
+        let sel = select_adaptor_edges(&graph, &rates, &apps, &cfg);
+        assert!(sel.iter().all(|e| e.topic != "/vision/bond"), "{sel:?}");
+        assert!(sel.contains(&e("/camera", "/detector")));
+        assert!(!adaptable_type("bond/Status") && adaptable_type("sensor_msgs/Image"));
     }
 
     #[test]

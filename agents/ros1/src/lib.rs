@@ -131,7 +131,7 @@ pub fn placement_from_apps(apps: Arc<dyn AppOf + Send + Sync>, cfg: PolicyConfig
         if cfg.excluded(id) {
             return false;
         }
-        if cfg.included(id) {
+        if cfg.included(id) || apps.claims(id) {
             return true;
         }
         let non_core = |n: &str| apps.is_core(n) == Some(false);
@@ -564,6 +564,28 @@ mod tests {
         assert!(place(&e("/odom", "/nav"), &[]), "include list");
         assert!(!place(&e("/img", "/det"), &["/cam".into()]), "exclude list");
         assert!(!place(&e("/rosout", "/det"), &[]), "excluded topic");
+    }
+
+    /// A core nodelet manager's input that a non-core app claims is adapted;
+    /// its other inputs are not.
+    #[test]
+    fn placement_adapts_an_input_a_non_core_app_claims() {
+        struct Claims;
+        impl AppOf for Claims {
+            fn is_core(&self, _: &str) -> Option<bool> {
+                Some(true)
+            }
+            fn claims(&self, e: &EdgeId) -> bool {
+                e.topic == "/cam/image_raw" && e.subscriber == "/vision"
+            }
+        }
+        let place = placement_from_apps(Arc::new(Claims), PolicyConfig::default());
+        let e = |t: &str| EdgeId {
+            topic: t.into(),
+            subscriber: "/vision".into(),
+        };
+        assert!(place(&e("/cam/image_raw"), &["/cam".into()]));
+        assert!(!place(&e("/cam/image_mono"), &["/cam".into()]));
     }
 
     #[test]

@@ -108,7 +108,9 @@ impl MasterHandler {
                     let mut settings = lock(&core.settings);
                     let (pubs, fx) =
                         lock(&core.state).register_subscriber(&caller, &api, &topic, &ty);
-                    let place = !settings.contains_key(&id) && (core.placement)(&id, &pubs);
+                    let place = !settings.contains_key(&id)
+                        && configbot_dataplane::policy::adaptable_type(&ty)
+                        && (core.placement)(&id, &pubs);
                     if place {
                         settings.insert(id, Default::default());
                     }

@@ -43,8 +43,8 @@ pub const EXAMPLES: [(&str, &str); 6] = [
         include_str!("../../../manifests/examples/real/perception.yaml"),
     ),
     (
-        "real-backlog.yaml",
-        include_str!("../../../manifests/examples/real/backlog.yaml"),
+        "real-nodelets.yaml",
+        include_str!("../../../manifests/examples/real/nodelets.yaml"),
     ),
     (
         "real-two-paths.yaml",
@@ -84,7 +84,7 @@ pub struct DemoArgs {
 pub fn example(name: &str) -> anyhow::Result<(RobotStack, PerformanceSpec)> {
     let file = format!("{name}.yaml");
     let (_, text) = EXAMPLES.iter().find(|(f, _)| *f == file).ok_or_else(|| {
-        anyhow::anyhow!("no example stack {name:?} (basic-nav, intermed-nav, terrain-nav, real-perception, real-backlog, real-two-paths)")
+        anyhow::anyhow!("no example stack {name:?} (basic-nav, intermed-nav, terrain-nav, real-perception, real-nodelets, real-two-paths)")
     })?;
     let exe = std::env::current_exe()?;
     let text = text.replace(

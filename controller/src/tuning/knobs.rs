@@ -70,6 +70,23 @@ pub enum KnobError {
     Space(String),
 }
 
+/// The inputs non-core apps claim in other apps' nodes (`App::inputs`), as
+/// (topic, subscriber), each with whether any claiming app has a metric (an
+/// input that feeds no measured app is pinned like a metric-less node).
+fn claimed_inputs(
+    stack: &RobotStackSpec,
+    spec: &PerformanceSpecSpec,
+) -> BTreeMap<(String, String), bool> {
+    let mut out: BTreeMap<(String, String), bool> = BTreeMap::new();
+    for app in stack.apps.iter().filter(|a| !a.core) {
+        let measured = spec.metrics.iter().any(|m| m.app == app.name);
+        for i in &app.inputs {
+            *out.entry((i.topic.clone(), i.node.clone())).or_default() |= measured;
+        }
+    }
+    out
+}
+
 /// Name of a CPU knob.
 pub fn cpu_knob_name(node: &str) -> String {
     format!("cpu:{node}")
@@ -91,6 +108,7 @@ pub fn derive(
 ) -> Result<KnobSpace, KnobError> {
     let cpu = &spec.knobs.cpu;
     let feeds = feeds_a_metric(graph, spec);
+    let claimed = claimed_inputs(stack, spec);
     let mut knobs = Vec::new();
     for (app, node) in stack.nodes() {
         if !graph.nodes.contains_key(&node.name) {
@@ -137,6 +155,13 @@ pub fn derive(
             ..PolicyConfig::default()
         };
         cfg.exclude.extend(a.exclude.iter().map(sel));
+        // Inputs a non-core app claims in another app's node are adapted
+        // like its own inputs (see `App::inputs`).
+        cfg.include
+            .extend(claimed.keys().map(|(topic, node)| EdgeSelector {
+                topic: topic.clone(),
+                subscriber: Some(node.clone()),
+            }));
         for e in policy::select_adaptor_edges(graph, rates, &apps, &cfg) {
             let Some(&source) = rates.get(&e.topic) else {
                 continue;
@@ -144,7 +169,8 @@ pub fn derive(
             if source <= a.min_rate_hz {
                 continue;
             }
-            let restricts_non_core = apps(&e.subscriber) == Some(false);
+            let restricts_non_core = apps(&e.subscriber) == Some(false)
+                || claimed.contains_key(&(e.topic.clone(), e.subscriber.clone()));
             knobs.push(KnobDef {
                 name: adaptor_knob_name(&e.topic, &e.subscriber),
                 target: KnobTarget::Adaptor {
@@ -167,6 +193,11 @@ pub fn derive(
         KnobTarget::Adaptor { subscriber, .. } => subscriber.clone(),
     };
     let idle = |k: &KnobDef| {
+        if let KnobTarget::Adaptor { topic, subscriber } = &k.target
+            && let Some(measured) = claimed.get(&(topic.clone(), subscriber.clone()))
+        {
+            return !measured;
+        }
         let n = acts_on(k);
         core_of.get(n.as_str()) == Some(&false) && !feeds.contains(&n)
     };
@@ -203,10 +234,14 @@ pub fn feeds_a_metric(
             reached.insert(c.node.clone());
         }
     }
-    // Walk upstream: the publishers of every topic a reached node subscribes to.
+    // Walk upstream: the publishers of every topic a reached node subscribes
+    // to. Liveness topics (nodelet bonds) carry no data: a loader process
+    // that only exchanges heartbeats with its manager feeds nothing.
     let mut frontier: Vec<String> = reached.iter().cloned().collect();
     while let Some(n) = frontier.pop() {
-        for t in graph.topics.values().filter(|t| t.subscribers.contains(&n)) {
+        for t in graph.topics.values().filter(|t| {
+            t.subscribers.contains(&n) && configbot_dataplane::policy::adaptable_type(&t.msg_type)
+        }) {
             for p in &t.publishers {
                 if reached.insert(p.clone()) {
                     frontier.push(p.clone());
@@ -630,6 +665,98 @@ mod tests {
         let s = derive(&stack(), &sp, &graph(&all), &rates(), 2.0).unwrap();
         assert!(names(&s).is_empty(), "{:?}", names(&s));
         assert_eq!(s.pinned.len(), 5);
+    }
+
+    /// A nodelet manager shared by a core and a non-core app: the core
+    /// tracker's input and the people detector's input arrive at one process.
+    #[test]
+    fn an_input_a_non_core_app_claims_in_a_core_process_is_an_adaptor_knob_that_restricts_only_it()
+    {
+        let stack: RobotStackSpec = serde_json::from_value(serde_json::json!({
+            "apps": [
+                {"name": "tracking", "core": true, "nodes": [
+                    {"name": "/cam", "run": {"command": "x"}},
+                    {"name": "/vision", "run": {"command": "x"}}]},
+                {"name": "people", "nodes": [{"name": "/people_loader", "run": {"command": "x"}}],
+                    "inputs": [{"node": "/vision", "topic": "/cam/image_raw"}]}
+            ]
+        }))
+        .unwrap();
+        let mut sp: PerformanceSpecSpec = serde_json::from_value(serde_json::json!({
+            "stackRef": {"name": "s"},
+            "metrics": [
+                {"name": "corners", "app": "tracking",
+                    "source": {"topicRate": {"topic": "/corners"}}, "target": {"atLeast": 25}},
+                {"name": "people", "app": "people",
+                    "source": {"topicRate": {"topic": "/found"}}, "target": {"atLeast": 2}}]
+        }))
+        .unwrap();
+        let mut g = Graph::default();
+        for n in ["/cam", "/vision", "/people_loader"] {
+            g.nodes.insert(
+                n.into(),
+                NodeInfo {
+                    name: n.into(),
+                    uri: String::new(),
+                    pid: None,
+                },
+            );
+        }
+        for (t, p, s) in [
+            ("/cam/image_raw", "/cam", Some("/vision")),
+            ("/cam/image_mono", "/cam", Some("/vision")),
+            ("/corners", "/vision", None),
+            ("/found", "/vision", None),
+            ("/vision/bond", "/people_loader", Some("/vision")),
+        ] {
+            g.topics.insert(
+                t.into(),
+                TopicInfo {
+                    name: t.into(),
+                    msg_type: if t.ends_with("bond") {
+                        "bond/Status".into()
+                    } else {
+                        "m/M".into()
+                    },
+                    publishers: [p.to_string()].into(),
+                    subscribers: s.into_iter().map(str::to_string).collect(),
+                },
+            );
+        }
+        let rates: BTreeMap<String, f64> = [
+            ("/cam/image_raw", 30.0),
+            ("/cam/image_mono", 30.0),
+            ("/vision/bond", 10.0),
+        ]
+        .into_iter()
+        .map(|(k, v)| (k.to_string(), v))
+        .collect();
+        let s = derive(&stack, &sp, &g, &rates, 2.0).unwrap();
+        // The claimed input is searched; the core input beside it is not a knob.
+        assert_eq!(names(&s), vec!["rate:/cam/image_raw>/vision"]);
+        assert!(
+            s.knobs[0].restricts_non_core,
+            "it only takes input from people"
+        );
+        assert_eq!((s.knobs[0].min, s.knobs[0].max), (0.5, 30.0));
+        // The loader only exchanges bond heartbeats with the manager: it
+        // feeds nothing, so it is pinned at its minimum, and the bond is
+        // never adapted.
+        assert_eq!(s.pinned_names(), vec!["cpu:/people_loader"]);
+        // So the restrictive corner throttles that input, and never the core CPU.
+        assert_eq!(s.restrictive_corner(&[30.0]), Some(vec![0.5]));
+        // Without adaptors there is nothing to search.
+        let mut off = sp.clone();
+        off.knobs.adaptors.enabled = false;
+        assert!(names(&derive(&stack, &off, &g, &rates, 2.0).unwrap()).is_empty());
+        // An input claimed only by an app with no metric is pinned too.
+        sp.metrics.retain(|m| m.app != "people");
+        let s = derive(&stack, &sp, &g, &rates, 2.0).unwrap();
+        assert!(names(&s).is_empty());
+        assert_eq!(
+            s.pinned_names(),
+            vec!["cpu:/people_loader", "rate:/cam/image_raw>/vision"]
+        );
     }
 
     #[test]

@@ -38,7 +38,7 @@ use crate::tuning::startup::flowing;
 #[derive(Debug, Args)]
 pub struct BenchArgs {
     /// Stacks to run (comma-separated). `real` means the real Debian ROS 1
-    /// stacks (real-perception, real-backlog, real-two-paths), each of which
+    /// stacks (real-perception, real-nodelets, real-two-paths), each of which
     /// can also be named alone.
     #[arg(
         long,

@@ -32,7 +32,7 @@ use crate::tuning::robot::Robot;
 use crate::tuning::settle;
 
 /// The real stacks, by the name `--stacks` takes (`real` means all of them).
-pub const STACKS: [&str; 3] = ["real-perception", "real-backlog", "real-two-paths"];
+pub const STACKS: [&str; 3] = ["real-perception", "real-nodelets", "real-two-paths"];
 
 /// Satisfaction the oracle's best config must hold over a full window.
 pub const ORACLE_HOLDS: f64 = 0.995;
@@ -432,7 +432,7 @@ mod tests {
         let s = expand(&["basic-nav".into(), "real".into()]);
         assert_eq!(s[0], "basic-nav");
         assert_eq!(&s[1..], STACKS.map(String::from));
-        assert!(is_real("real-backlog") && !is_real("basic-nav"));
+        assert!(is_real("real-nodelets") && !is_real("basic-nav"));
     }
 
     #[test]
