@@ -610,3 +610,40 @@ fn with_every_knob_pinned_the_pinned_config_is_measured_before_a_verdict() {
     );
     assert_eq!(name(&run.state), "VerifyApply");
 }
+
+/// A run whose trials had windows both on and off target verifies its pick
+/// over [`crate::tuning::machine::NOISY_VERIFY_TRIALS`] trials' length, not two.
+#[test]
+fn a_run_that_saw_the_boundary_blur_verifies_longer() {
+    let (st, sp) = (stack(), spec(1.0, 5));
+    let env = env(&st, &sp);
+    let mut run = with_two_trials(&env);
+    run.state = State::Verify {
+        candidate: Candidate::Trial { index: 0 },
+        config: cfg(),
+    };
+    let verify_ms = |run: &Run| match effect(run, &env) {
+        Effect::Measure(r) => r.duration_ms,
+        e => panic!("{e:?}"),
+    };
+    assert!(
+        !crate::tuning::machine::boundary_blurred(&run),
+        "every window held"
+    );
+    assert_eq!(verify_ms(&run), 10_000, "two 5 s trials");
+    // The same config missed /cmd_vel in 3 of its 10 windows.
+    let mut cmd = OK.to_vec();
+    cmd.resize(10, OK[0]);
+    cmd[2..5].fill(20.0);
+    let Input::Measured(r) = report(&cmd, 4.0) else {
+        unreachable!()
+    };
+    run.trials.push(TrialRecord {
+        config: cfg(),
+        x: run.trials[0].x.clone(),
+        eval: measure::evaluate(&env.defs(), &r, Default::default()),
+        censored: false,
+    });
+    assert!(crate::tuning::machine::boundary_blurred(&run));
+    assert_eq!(verify_ms(&run), 30_000, "six 5 s trials");
+}
