@@ -315,16 +315,7 @@ fn kill_storm_during_tuning_loses_nothing() {
     );
     check_nodes(&robot, "after the run", Duration::from_secs(20));
     // Every trial was measured to its end once: one `Trial` event per index.
-    let mut per_index: BTreeMap<u64, usize> = BTreeMap::new();
-    for e in robot.events_with(name, "Trial") {
-        let m = e["message"].as_str().unwrap_or("");
-        let i = m
-            .strip_prefix("trial ")
-            .and_then(|r| r.split(':').next())
-            .and_then(|x| x.parse().ok())
-            .unwrap_or_else(|| panic!("trial event {m:?}"));
-        *per_index.entry(i).or_default() += 1;
-    }
+    let per_index = robot.trial_events_per_index(name);
     assert!(
         per_index.values().all(|n| *n == 1) && per_index.len() == last.len(),
         "trial events per index {per_index:?}\n{}",

@@ -403,6 +403,22 @@ impl Robot {
         http_get_json(&self.agent_socket(), path)
     }
 
+    /// How many `Trial` events (`trial N: ...`) name each trial index of
+    /// spec `name`: one each when every trial was measured to its end once.
+    pub fn trial_events_per_index(&self, name: &str) -> std::collections::BTreeMap<u64, usize> {
+        let mut per_index = std::collections::BTreeMap::new();
+        for e in self.events_with(name, "Trial") {
+            let m = e["message"].as_str().unwrap_or("");
+            let i = m
+                .strip_prefix("trial ")
+                .and_then(|r| r.split(':').next())
+                .and_then(|x| x.parse().ok())
+                .unwrap_or_else(|| panic!("trial event {m:?}"));
+            *per_index.entry(i).or_default() += 1;
+        }
+        per_index
+    }
+
     /// Events about `name` with this reason.
     pub fn events_with(&self, name: &str, reason: &str) -> Vec<Value> {
         self.events(name)
