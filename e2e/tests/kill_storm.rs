@@ -14,7 +14,8 @@
 //!   runs), that process is in the node's cgroup, no other process is in the
 //!   robot's subtree, and the agent supervises it (its inventory's main pid)
 //!   and the ROS graph has the node registered;
-//! - no core node is left with a CPU limit (`cpu.cfs_quota_us` is -1).
+//! - no core node is left with a CPU limit (`cpu.cfs_quota_us` is -1);
+//! - the nodes outlived the kill: each has the process it had before.
 //!
 //! After the storm the run goes on to its end, every trial index once.
 
@@ -270,6 +271,7 @@ fn kill_storm_during_tuning_loses_nothing() {
         assert_extends(&seen, &history, &when, &robot, name);
         seen = history;
 
+        let pids_before = simnode_processes(&robot.master_uri());
         let killed = Instant::now();
         match target {
             Target::Server => robot.kill9_and_restart(),
@@ -292,6 +294,13 @@ fn kill_storm_during_tuning_loses_nothing() {
         assert_extends(&seen, &after, &when, &robot, name);
         seen = after;
         check_nodes(&robot, &when, Duration::from_secs(20));
+        // Nodes outlive both processes: none was started again.
+        assert_eq!(
+            simnode_processes(&robot.master_uri()),
+            pids_before,
+            "{when}: node processes changed\nagent log:\n{}",
+            robot.agent_log()
+        );
         worst_recovery = worst_recovery.max(killed.elapsed());
     }
     let storm = storm_started.elapsed();
