@@ -57,19 +57,24 @@ impl Kube {
         }
     }
 
+    /// kubectl's flags for this server: address, token and CA.
+    fn flags(&self) -> Vec<String> {
+        vec![
+            "--server".into(),
+            format!("https://127.0.0.1:{}", self.port),
+            "--token".into(),
+            TOKEN.into(),
+            "--certificate-authority".into(),
+            self.dir.path().join("tls.crt").display().to_string(),
+        ]
+    }
+
     /// Runs kubectl; (success, stdout, stderr).
     fn run(&self, args: &[&str]) -> (bool, String, String) {
         let out = Command::new(&self.kubectl)
             .env("KUBECONFIG", self.dir.path().join("kubeconfig"))
             .env("HOME", self.dir.path())
-            .args([
-                "--server",
-                &format!("https://127.0.0.1:{}", self.port),
-                "--token",
-                TOKEN,
-                "--certificate-authority",
-            ])
-            .arg(self.dir.path().join("tls.crt"))
+            .args(self.flags())
             .args(args)
             .output()
             .unwrap();
@@ -429,4 +434,293 @@ fn server_side_apply_with_conflicts() {
         fewer.to_str().unwrap(),
     ]);
     assert!(k.object("rs", "basic-nav").unwrap()["spec"]["robot"]["cpus"].is_number());
+}
+
+/// `kubectl diff`: nothing to show (exit 0) for the stored file, a unified
+/// diff of the changed field and exit 1 for a changed one, and the server
+/// (a dry-run patch) keeps what it had.
+#[test]
+fn diff_shows_changes_and_exits_1() {
+    let k = Kube::start();
+    let file = example("basic-nav");
+    k.ok(&["apply", "-f", &file]);
+    let before = k.object("rs", "basic-nav").unwrap();
+    let (ok, out, err) = k.run(&["diff", "-f", &file]);
+    assert!(
+        ok && out.is_empty(),
+        "an unchanged file differs:\n{out}{err}"
+    );
+
+    let changed = k.dir.path().join("jackal.yaml");
+    let text = std::fs::read_to_string(&file).unwrap();
+    assert!(text.contains("model: spot"), "the example changed: {text}");
+    std::fs::write(&changed, text.replace("model: spot", "model: jackal")).unwrap();
+    let out = Command::new(&k.kubectl)
+        .env("KUBECONFIG", k.dir.path().join("kubeconfig"))
+        .env("HOME", k.dir.path())
+        .args(k.flags())
+        .args(["diff", "-f", changed.to_str().unwrap()])
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert_eq!(
+        out.status.code(),
+        Some(1),
+        "kubectl diff of a change: {text}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(
+        text.contains("-    model: spot") && text.contains("+    model: jackal"),
+        "{text}"
+    );
+    // Only the RobotStack changed; the PerformanceSpec of the file is the same.
+    assert!(text.contains("RobotStack.default.basic-nav"), "{text}");
+    assert!(
+        !text.contains("PerformanceSpec.default.basic-nav"),
+        "{text}"
+    );
+    let after = k.object("rs", "basic-nav").unwrap();
+    assert_eq!(after["metadata"], before["metadata"]);
+    assert_eq!(after["spec"], before["spec"]);
+}
+
+/// `kubectl edit` with a non-interactive editor: a change is saved (new
+/// generation), no change is "Edit cancelled", and an edit the server refuses
+/// is reported with the field and stores nothing.
+#[test]
+fn edit_with_a_scripted_editor() {
+    let k = Kube::start();
+    k.ok(&["apply", "-f", &example("basic-nav")]);
+    let script = |name: &str, sed: &str| -> String {
+        let p = k.dir.path().join(name);
+        std::fs::write(&p, format!("#!/bin/sh\nexec sed -i '{sed}' \"$1\"\n")).unwrap();
+        std::fs::set_permissions(&p, std::os::unix::fs::PermissionsExt::from_mode(0o755)).unwrap();
+        p.display().to_string()
+    };
+    let edit = |editor: &str| {
+        let out = Command::new(&k.kubectl)
+            .env("KUBECONFIG", k.dir.path().join("kubeconfig"))
+            .env("HOME", k.dir.path())
+            .env("KUBE_EDITOR", editor)
+            .env("TMPDIR", k.dir.path())
+            .args(k.flags())
+            .args(["edit", "rs", "basic-nav"])
+            .output()
+            .unwrap();
+        (
+            out.status.success(),
+            format!(
+                "{}{}",
+                String::from_utf8_lossy(&out.stdout),
+                String::from_utf8_lossy(&out.stderr)
+            ),
+        )
+    };
+    let (ok, out) = edit(&script("jackal.sh", "s/model: spot/model: jackal/"));
+    assert!(ok, "{out}");
+    assert!(
+        out.contains("robotstack.configbot.dev/basic-nav edited"),
+        "{out}"
+    );
+    let obj = k.object("rs", "basic-nav").unwrap();
+    assert_eq!(obj["spec"]["robot"]["model"], "jackal");
+    assert_eq!(obj["metadata"]["generation"], 2);
+
+    let (ok, out) = edit("true");
+    assert!(
+        ok && out.contains("Edit cancelled, no changes made"),
+        "{out}"
+    );
+
+    let (ok, out) = edit(&script(
+        "colour.sh",
+        "s/^    model: jackal$/    model: jackal\\n    colour: red/",
+    ));
+    assert!(!ok, "{out}");
+    assert!(out.contains("is invalid"), "{out}");
+    // kubectl keeps the refused edit, with the server's causes on top.
+    let kept = std::fs::read_dir(k.dir.path())
+        .unwrap()
+        .filter_map(Result::ok)
+        .find(|e| e.file_name().to_string_lossy().starts_with("kubectl-edit-"))
+        .map(|e| std::fs::read_to_string(e.path()).unwrap())
+        .unwrap_or_else(|| panic!("no copy of the refused edit: {out}"));
+    assert!(
+        kept.contains("# * spec.robot.colour: unknown field"),
+        "{kept}"
+    );
+    let after = k.object("rs", "basic-nav").unwrap();
+    assert_eq!(
+        after["metadata"]["resourceVersion"],
+        obj["metadata"]["resourceVersion"]
+    );
+}
+
+/// `kubectl explain` reads the OpenAPI v3 document: both kinds, their short
+/// names and plurals, and nested fields with their descriptions and types.
+#[test]
+fn explain_kinds_and_nested_fields() {
+    let k = Kube::start();
+    for (what, kind) in [
+        ("robotstacks", "RobotStack"),
+        ("rs", "RobotStack"),
+        ("performancespecs", "PerformanceSpec"),
+        ("pspec", "PerformanceSpec"),
+    ] {
+        let out = k.ok(&["explain", what]);
+        assert!(
+            out.contains(&format!("KIND:       {kind}"))
+                && out.contains("GROUP:      configbot.dev")
+                && out.contains("VERSION:    v1alpha1")
+                && out.contains("spec\t<Object> -required-")
+                && out.contains("status\t<Object>"),
+            "kubectl explain {what}:\n{out}"
+        );
+    }
+    let out = k.ok(&["explain", "robotstacks.spec.apps"]);
+    assert!(
+        out.contains("FIELD: apps <[]Object>")
+            && out.contains("name\t<string> -required-")
+            && out.contains("nodes\t<[]Object> -required-")
+            && out.contains("core\t<boolean>"),
+        "{out}"
+    );
+    let out = k.ok(&["explain", "pspec.spec.knobs.cpu.min"]);
+    assert!(
+        out.contains("FIELD: min <number>") && out.contains("in CPUs"),
+        "{out}"
+    );
+    let out = k.ok(&["explain", "rs", "--recursive"]);
+    assert!(
+        out.contains("cpus\t<integer>") || out.contains("cpus\t<number>"),
+        "{out}"
+    );
+    let (ok, _, err) = k.run(&["explain", "rs.spec.colour"]);
+    assert!(!ok && err.contains("colour"), "{err}");
+}
+
+/// `n` merge patches of a label of RobotStack `name`, one after another on
+/// one connection to the server's Unix socket (a burst kubectl cannot make).
+fn label_burst(sock: &Path, name: &str, n: usize) {
+    use std::io::{BufRead, BufReader, Read, Write};
+    let s = std::os::unix::net::UnixStream::connect(sock).unwrap();
+    s.set_read_timeout(Some(Duration::from_secs(20))).unwrap();
+    let mut w = s.try_clone().unwrap();
+    let mut r = BufReader::new(s);
+    for i in 0..n {
+        let body = format!(r#"{{"metadata":{{"labels":{{"burst":"{i}"}}}}}}"#);
+        write!(
+            w,
+            "PATCH /apis/configbot.dev/v1alpha1/namespaces/default/robotstacks/{name} HTTP/1.1\r\n\
+             Host: localhost\r\nContent-Type: application/merge-patch+json\r\nContent-Length: {}\r\n\r\n{body}",
+            body.len()
+        )
+        .unwrap();
+        let mut status = String::new();
+        r.read_line(&mut status).unwrap();
+        assert!(status.starts_with("HTTP/1.1 200"), "patch {i}: {status}");
+        let mut len = 0;
+        loop {
+            let mut h = String::new();
+            r.read_line(&mut h).unwrap();
+            if h.trim().is_empty() {
+                break;
+            }
+            if let Some((k, v)) = h.split_once(':')
+                && k.eq_ignore_ascii_case("content-length")
+            {
+                len = v.trim().parse().unwrap();
+            }
+        }
+        assert!(len > 0, "patch {i}: no content-length");
+        let mut body = vec![0; len];
+        r.read_exact(&mut body).unwrap();
+    }
+}
+
+/// `kubectl get -w`: the watch shows an update as a MODIFIED event. A
+/// watcher that stops reading (SIGSTOP) while thousands of changes happen
+/// falls behind: kubectl gets the 410 Expired `Status` as an ERROR event,
+/// prints it and ends, as with the apiserver.
+#[test]
+fn get_watch_sees_updates_and_expiry() {
+    let k = Kube::start();
+    k.ok(&["apply", "-f", &example("basic-nav")]);
+    let mut watch = Command::new(&k.kubectl)
+        .env("KUBECONFIG", k.dir.path().join("kubeconfig"))
+        .env("HOME", k.dir.path())
+        .args(k.flags())
+        .args(["get", "rs", "-w", "--output-watch-events"])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let stdout = watch.stdout.take().unwrap();
+    let (tx, rx) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        use std::io::BufRead;
+        for line in std::io::BufReader::new(stdout)
+            .lines()
+            .map_while(Result::ok)
+        {
+            let _ = tx.send(line);
+        }
+    });
+    struct Kill(Child);
+    impl Drop for Kill {
+        fn drop(&mut self) {
+            let _ = self.0.kill();
+            let _ = self.0.wait();
+        }
+    }
+    let mut watch = Kill(watch);
+    let mut seen = Vec::new();
+    let mut wait_line = |what: &str, timeout: Duration, f: &dyn Fn(&str) -> bool| {
+        let deadline = Instant::now() + timeout;
+        loop {
+            let left = deadline.saturating_duration_since(Instant::now());
+            match rx.recv_timeout(left) {
+                Ok(l) if f(&l) => return l,
+                Ok(l) => seen.push(l),
+                Err(_) => panic!("no {what} within {timeout:?}; seen:\n{}", seen.join("\n")),
+            }
+        }
+    };
+    wait_line("ADDED line", Duration::from_secs(20), &|l| {
+        l.starts_with("ADDED") && l.contains("basic-nav")
+    });
+    k.ok(&["label", "rs", "basic-nav", "seen=yes"]);
+    wait_line("MODIFIED line", Duration::from_secs(20), &|l| {
+        l.starts_with("MODIFIED") && l.contains("basic-nav")
+    });
+
+    // The slow consumer: kubectl stopped, 3500 changes, kubectl goes on.
+    let pid = libc::pid_t::try_from(watch.0.id()).unwrap();
+    #[allow(unsafe_code)]
+    // SAFETY: kill(2) of the kubectl child this test started.
+    unsafe {
+        libc::kill(pid, libc::SIGSTOP);
+    }
+    label_burst(&k.dir.path().join("api.sock"), "basic-nav", 3500);
+    #[allow(unsafe_code)]
+    // SAFETY: as above.
+    unsafe {
+        libc::kill(pid, libc::SIGCONT);
+    }
+    let expired = wait_line("Expired line", Duration::from_secs(60), &|l| {
+        l.contains("Expired")
+    });
+    assert!(
+        expired.starts_with("ERROR") && expired.contains("list again"),
+        "{expired}"
+    );
+    let deadline = Instant::now() + Duration::from_secs(20);
+    let status = loop {
+        if let Some(st) = watch.0.try_wait().unwrap() {
+            break st;
+        }
+        assert!(Instant::now() < deadline, "kubectl went on after 410");
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    assert!(status.success(), "{status}");
 }

@@ -5,7 +5,6 @@
 
 mod common;
 
-use std::collections::BTreeMap;
 use std::time::{Duration, Instant};
 
 use common::{HOG_STACK_NODES, Robot, hog_stack, phase, trial_history};
@@ -64,16 +63,7 @@ fn kill_9_mid_tuning_resumes_without_repeating_trials() {
     assert_eq!(idx, (0..after.len() as u64).collect::<Vec<_>>());
     assert!(after.len() > finished.len() && after.len() <= max_trials as usize);
     // Every trial was measured once: one `Trial` event per index, across both servers.
-    let mut per_index: BTreeMap<u64, usize> = BTreeMap::new();
-    for e in robot.events_with(name, "Trial") {
-        let m = e["message"].as_str().unwrap_or("");
-        let i = m
-            .strip_prefix("trial ")
-            .and_then(|r| r.split(':').next())
-            .and_then(|x| x.parse().ok())
-            .unwrap_or_else(|| panic!("trial event {m:?}"));
-        *per_index.entry(i).or_default() += 1;
-    }
+    let per_index = robot.trial_events_per_index(name);
     assert!(
         per_index.values().all(|n| *n == 1) && per_index.len() == after.len(),
         "trial events per index {per_index:?}\n{}",

@@ -240,10 +240,20 @@ impl AgentClient {
     }
 
     /// `PUT /v1/stack`: replaces the stack at run time.
+    ///
+    /// A stack without apps (the controller's "no stack": the last one was
+    /// deleted) goes as an empty `StackSpec`: as a manifest it has no name
+    /// and fails validation, and the agent would go on running the old nodes.
     pub async fn set_stack(&self, stack: &RobotStack) -> ClientResult<()> {
-        self.call::<serde_json::Value>(Method::PUT, "/v1/stack", Some(stack))
-            .await
-            .map(|_| ())
+        let res = if stack.spec.apps.is_empty() {
+            let empty = crate::spec::StackSpec::default();
+            self.call::<serde_json::Value>(Method::PUT, "/v1/stack", Some(&empty))
+                .await
+        } else {
+            self.call::<serde_json::Value>(Method::PUT, "/v1/stack", Some(stack))
+                .await
+        };
+        res.map(|_| ())
     }
 
     /// `PUT /v1/config`: CPU limits atomically, then adaptor rates.

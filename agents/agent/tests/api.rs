@@ -385,3 +385,30 @@ async fn listeners_refuse_nesting_bombs_and_100_mb_bodies_and_go_on() {
         assert!(ok.starts_with("HTTP/1.1 200"), "unix={unix}: {ok}");
     }
 }
+
+/// The controller's "no stack" (an empty RobotStack with no name, sent when
+/// the last stack is deleted) clears a remote agent's stack: the agent used
+/// to refuse it (400: a manifest without name and apps) and kept the nodes.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn client_clears_the_stack_with_an_empty_one() {
+    let mut env = Env::new();
+    let agent = env.start(stack_json(STACK)).await;
+    let path = env.path("agent.sock");
+    let listener = bind_unix(&path).unwrap();
+    let rt = configbot_agent::NodeRuntime::with_agent(agent).unwrap();
+    tokio::spawn(serve_unix(rt, listener));
+    let client = configbot_agent::client::AgentClient::unix(&path);
+    assert_eq!(client.inventory().await.unwrap().len(), 2);
+    let empty = configbot_manifests::RobotStack {
+        api_version: configbot_manifests::API_VERSION.into(),
+        kind: "RobotStack".into(),
+        metadata: Default::default(),
+        spec: configbot_manifests::RobotStackSpec {
+            robot: Default::default(),
+            apps: Vec::new(),
+        },
+        status: None,
+    };
+    client.set_stack(&empty).await.unwrap();
+    assert!(client.inventory().await.unwrap().is_empty());
+}

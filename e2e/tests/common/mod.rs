@@ -86,6 +86,12 @@ pub struct Robot {
     pub root: String,
     pub ros_port: u16,
     server: Option<Child>,
+    /// The node agent as its own process (`configbot agent`), which the
+    /// server drives over `--agent-socket`; `None`: the agent is embedded.
+    agent: Option<Child>,
+    split: bool,
+    /// The cpu cgroup the test process came from (see [`Robot::prioritise`]).
+    home: Option<PathBuf>,
     /// Released after `Drop::drop` cleaned up (fields drop after it).
     _serial: MutexGuard<'static, ()>,
 }
@@ -99,11 +105,136 @@ impl Robot {
             root: unique_root(),
             ros_port: free_port(),
             server: None,
+            agent: None,
+            split: false,
+            home: None,
             _serial: serial,
         };
         r.prioritise();
         r.spawn_server();
         r
+    }
+
+    /// Starts the node agent alone (`configbot agent`), then `configbot serve
+    /// --agent-socket` driving it: two processes that can be killed apart.
+    pub fn start_split() -> Robot {
+        let serial = serial();
+        let mut r = Robot {
+            dir: tempfile::tempdir().expect("temp dir"),
+            root: unique_root(),
+            ros_port: free_port(),
+            server: None,
+            agent: None,
+            split: true,
+            home: None,
+            _serial: serial,
+        };
+        r.prioritise();
+        r.spawn_agent();
+        r.spawn_server();
+        r
+    }
+
+    pub fn agent_socket(&self) -> PathBuf {
+        self.dir.path().join("agent.sock")
+    }
+
+    /// The separate agent's pid, if it runs.
+    pub fn agent_pid(&self) -> Option<u32> {
+        self.agent.as_ref().map(Child::id)
+    }
+
+    /// The server's pid, if it runs.
+    pub fn server_pid(&self) -> Option<u32> {
+        self.server.as_ref().map(Child::id)
+    }
+
+    fn spawn_agent(&mut self) {
+        let _ = std::fs::remove_file(self.agent_socket());
+        let d = self.dir.path();
+        let child = Command::new(configbot_bin())
+            .arg("agent")
+            .arg("--socket")
+            .arg(self.agent_socket())
+            .arg("--state-file")
+            .arg(d.join("agent-state.json"))
+            .arg("--log-dir")
+            .arg(d.join("logs"))
+            .arg("--ros-db")
+            .arg(d.join("ros1.db"))
+            .args(["--cgroup-root", &self.root])
+            .args(["--subtree-cpu-weight", &ROBOT_WEIGHT.to_string()])
+            .args(["--ros-master-uri", &self.master_uri()])
+            .env("ROS_HOSTNAME", "localhost")
+            .stdout(Stdio::null())
+            .stderr(self.log_file("agent.log"))
+            .spawn()
+            .expect("spawn configbot agent");
+        self.move_to_ctl(&child);
+        self.agent = Some(child);
+        let sock = self.agent_socket();
+        self.wait_socket(&sock, "configbot agent", |r| {
+            r.agent.as_mut().map(|c| c.try_wait())
+        });
+    }
+
+    /// `kill -9` of the separate agent (its nodes keep running), then a new
+    /// agent on the same state file, subtree, ROS database and port.
+    pub fn kill9_agent_and_restart(&mut self) {
+        assert!(self.split, "the agent runs in the server");
+        if let Some(mut c) = self.agent.take() {
+            let _ = c.kill();
+            let _ = c.wait();
+        }
+        self.spawn_agent();
+    }
+
+    /// The agent's stderr so far (a split robot).
+    pub fn agent_log(&self) -> String {
+        std::fs::read_to_string(self.dir.path().join("agent.log")).unwrap_or_default()
+    }
+
+    fn log_file(&self, name: &str) -> std::fs::File {
+        std::fs::OpenOptions::new()
+            .create(true)
+            .append(true)
+            .open(self.dir.path().join(name))
+            .expect("log file")
+    }
+
+    /// Moves a process into `<root>-ctl` (see [`Robot::prioritise`]).
+    fn move_to_ctl(&self, child: &Child) {
+        if let Some(cpu) = Layout::detect().ok().and_then(|l| l.v1_cpu) {
+            let procs = self.ctl_cgroup(&cpu).join("cgroup.procs");
+            std::fs::write(procs, child.id().to_string()).expect("move to the ctl cgroup");
+        }
+    }
+
+    /// Waits up to 30 s for a Unix socket to accept; panics with the logs
+    /// when the process (`status`) exits first or time runs out.
+    fn wait_socket(
+        &mut self,
+        sock: &Path,
+        what: &str,
+        status: impl Fn(&mut Robot) -> Option<std::io::Result<Option<std::process::ExitStatus>>>,
+    ) {
+        let deadline = Instant::now() + Duration::from_secs(30);
+        while std::os::unix::net::UnixStream::connect(sock).is_err() {
+            if let Some(Ok(Some(st))) = status(self) {
+                panic!(
+                    "{what} exited ({st}):\n{}{}",
+                    self.server_log(),
+                    self.agent_log()
+                );
+            }
+            assert!(
+                Instant::now() < deadline,
+                "{what} did not come up within 30 s:\n{}{}",
+                self.server_log(),
+                self.agent_log()
+            );
+            std::thread::sleep(Duration::from_millis(20));
+        }
     }
 
     pub fn socket(&self) -> PathBuf {
@@ -116,14 +247,20 @@ impl Robot {
 
     /// Creates `<root>-ctl`, a sibling of the robot's subtree in the `cpu`
     /// hierarchy for the server itself, with [`ROBOT_SHARES`] (the server
-    /// measures the nodes, so it must not be starved by them either).
-    fn prioritise(&self) {
+    /// measures the nodes, so it must not be starved by them either). The
+    /// test process joins it while the robot lives (and goes back on drop):
+    /// run from a low-priority cgroup, it and the CLI it runs would get
+    /// next to no CPU beside the nodes and the scenario would stall.
+    fn prioritise(&mut self) {
         let Some(cpu) = Layout::detect().ok().and_then(|l| l.v1_cpu) else {
             return;
         };
         let dir = self.ctl_cgroup(&cpu);
         std::fs::create_dir_all(&dir).expect("create a cpu cgroup");
         std::fs::write(dir.join("cpu.shares"), ROBOT_SHARES.to_string()).expect("set cpu.shares");
+        self.home = own_cpu_cgroup(&cpu);
+        std::fs::write(dir.join("cgroup.procs"), std::process::id().to_string())
+            .expect("move the test into the ctl cgroup");
     }
 
     fn ctl_cgroup(&self, cpu: &Path) -> PathBuf {
@@ -132,42 +269,31 @@ impl Robot {
 
     fn spawn_server(&mut self) {
         let _ = std::fs::remove_file(self.socket());
-        let log = std::fs::OpenOptions::new()
-            .create(true)
-            .append(true)
-            .open(self.dir.path().join("server.log"))
-            .expect("server log");
-        let child = Command::new(configbot_bin())
-            .arg("serve")
+        let mut cmd = Command::new(configbot_bin());
+        cmd.arg("serve")
             .arg("--db")
             .arg(self.dir.path().join("configbot.db"))
             .arg("--socket")
-            .arg(self.socket())
-            .args(["--agent", "--cgroup-root", &self.root])
-            .args(["--subtree-cpu-weight", &ROBOT_WEIGHT.to_string()])
-            .args(["--ros-master-uri", &self.master_uri()])
+            .arg(self.socket());
+        if self.split {
+            cmd.arg("--agent-socket").arg(self.agent_socket());
+        } else {
+            cmd.args(["--agent", "--cgroup-root", &self.root])
+                .args(["--subtree-cpu-weight", &ROBOT_WEIGHT.to_string()])
+                .args(["--ros-master-uri", &self.master_uri()]);
+        }
+        let child = cmd
             .env("ROS_HOSTNAME", "localhost")
             .stdout(Stdio::null())
-            .stderr(log)
+            .stderr(self.log_file("server.log"))
             .spawn()
             .expect("spawn configbot serve");
-        if let Some(cpu) = Layout::detect().ok().and_then(|l| l.v1_cpu) {
-            let procs = self.ctl_cgroup(&cpu).join("cgroup.procs");
-            std::fs::write(procs, child.id().to_string()).expect("move the server");
-        }
+        self.move_to_ctl(&child);
         self.server = Some(child);
-        let deadline = Instant::now() + Duration::from_secs(30);
-        while std::os::unix::net::UnixStream::connect(self.socket()).is_err() {
-            if let Some(Ok(Some(status))) = self.server.as_mut().map(|c| c.try_wait()) {
-                panic!("configbot serve exited ({status}):\n{}", self.server_log());
-            }
-            assert!(
-                Instant::now() < deadline,
-                "configbot serve did not come up within 30 s:\n{}",
-                self.server_log()
-            );
-            std::thread::sleep(Duration::from_millis(50));
-        }
+        let sock = self.socket();
+        self.wait_socket(&sock, "configbot serve", |r| {
+            r.server.as_mut().map(|c| c.try_wait())
+        });
     }
 
     /// Whether the server process is still running.
@@ -262,34 +388,35 @@ impl Robot {
 
     /// Events about object `name` (oldest first), from the API.
     pub fn events(&self, name: &str) -> Vec<Value> {
-        use std::io::{Read, Write};
-        let Ok(mut s) = std::os::unix::net::UnixStream::connect(self.socket()) else {
-            return Vec::new();
-        };
-        let req = format!(
-            "GET /api/v1/namespaces/default/events?fieldSelector=involvedObject.name%3D{name} HTTP/1.1\r\nHost: localhost\r\nConnection: close\r\n\r\n"
-        );
-        if s.write_all(req.as_bytes()).is_err() {
-            return Vec::new();
+        http_get_json(
+            &self.socket(),
+            &format!(
+                "/api/v1/namespaces/default/events?fieldSelector=involvedObject.name%3D{name}"
+            ),
+        )
+        .and_then(|v| v["items"].as_array().cloned())
+        .unwrap_or_default()
+    }
+
+    /// `GET path` of the separate agent's API (e.g. `/v1/nodes`), as JSON.
+    pub fn agent_get(&self, path: &str) -> Option<Value> {
+        http_get_json(&self.agent_socket(), path)
+    }
+
+    /// How many `Trial` events (`trial N: ...`) name each trial index of
+    /// spec `name`: one each when every trial was measured to its end once.
+    pub fn trial_events_per_index(&self, name: &str) -> std::collections::BTreeMap<u64, usize> {
+        let mut per_index = std::collections::BTreeMap::new();
+        for e in self.events_with(name, "Trial") {
+            let m = e["message"].as_str().unwrap_or("");
+            let i = m
+                .strip_prefix("trial ")
+                .and_then(|r| r.split(':').next())
+                .and_then(|x| x.parse().ok())
+                .unwrap_or_else(|| panic!("trial event {m:?}"));
+            *per_index.entry(i).or_default() += 1;
         }
-        let mut buf = Vec::new();
-        let _ = s.read_to_end(&mut buf);
-        let text = String::from_utf8_lossy(&buf);
-        let Some((head, body)) = text.split_once("\r\n\r\n") else {
-            return Vec::new();
-        };
-        let body = if head
-            .to_ascii_lowercase()
-            .contains("transfer-encoding: chunked")
-        {
-            dechunk(body)
-        } else {
-            body.to_string()
-        };
-        serde_json::from_str::<Value>(&body)
-            .ok()
-            .and_then(|v| v["items"].as_array().cloned())
-            .unwrap_or_default()
+        per_index
     }
 
     /// Events about `name` with this reason.
@@ -356,18 +483,26 @@ impl Robot {
 
 impl Drop for Robot {
     fn drop(&mut self) {
-        if let Some(mut c) = self.server.take() {
+        for mut c in [self.server.take(), self.agent.take()]
+            .into_iter()
+            .flatten()
+        {
             let _ = c.kill();
             let _ = c.wait();
         }
         nuke(&self.root);
+        if let Some(home) = &self.home {
+            let _ = std::fs::write(home.join("cgroup.procs"), std::process::id().to_string());
+        }
         if let Some(cpu) = Layout::detect().ok().and_then(|l| l.v1_cpu) {
             let ctl = self.ctl_cgroup(&cpu);
             let deadline = Instant::now() + Duration::from_secs(10);
             while ctl.exists() && std::fs::remove_dir(&ctl).is_err() && Instant::now() < deadline {
                 let procs = std::fs::read_to_string(ctl.join("cgroup.procs")).unwrap_or_default();
                 for p in procs.lines().filter_map(|l| l.trim().parse().ok()) {
-                    kill9(p);
+                    if p != std::process::id() {
+                        kill9(p);
+                    }
                 }
                 std::thread::sleep(Duration::from_millis(20));
             }
@@ -383,6 +518,19 @@ pub fn example(name: &str) -> String {
         "command: configbot\n",
         &format!("command: {}\n", configbot_bin().display()),
     )
+}
+
+/// This process's cgroup in the v1 `cpu` hierarchy mounted at `cpu`.
+fn own_cpu_cgroup(cpu: &Path) -> Option<PathBuf> {
+    let text = std::fs::read_to_string("/proc/self/cgroup").ok()?;
+    text.lines().find_map(|l| {
+        let mut parts = l.splitn(3, ':');
+        let (_, controllers, path) = (parts.next()?, parts.next()?, parts.next()?);
+        controllers
+            .split(',')
+            .any(|c| c == "cpu")
+            .then(|| cpu.join(path.trim_start_matches('/')))
+    })
 }
 
 fn v1_backend(root: &str) -> Option<V1Backend> {
@@ -439,6 +587,68 @@ pub fn nuke(root: &str) {
         }
     }
     let _ = b.remove_root();
+}
+
+/// `GET path` over the Unix socket `sock`; the JSON body of a 200 answer.
+pub fn http_get_json(sock: &Path, path: &str) -> Option<Value> {
+    use std::io::{Read, Write};
+    let mut s = std::os::unix::net::UnixStream::connect(sock).ok()?;
+    s.set_read_timeout(Some(Duration::from_secs(10))).ok()?;
+    let req = format!("GET {path} HTTP/1.1\r\nHost: localhost\r\nConnection: close\r\n\r\n");
+    s.write_all(req.as_bytes()).ok()?;
+    let mut buf = Vec::new();
+    let _ = s.read_to_end(&mut buf);
+    let text = String::from_utf8_lossy(&buf);
+    let (head, body) = text.split_once("\r\n\r\n")?;
+    if !head.starts_with("HTTP/1.1 200") {
+        return None;
+    }
+    let body = if head
+        .to_ascii_lowercase()
+        .contains("transfer-encoding: chunked")
+    {
+        dechunk(body)
+    } else {
+        body.to_string()
+    };
+    serde_json::from_str(&body).ok()
+}
+
+/// The live `configbot simnode` processes that talk to the ROS master at
+/// `master_uri` (their `ROS_MASTER_URI`), by node name (`--name`), found in
+/// /proc whatever cgroup they are in: a node started twice, or left running
+/// outside its cgroup, shows here.
+pub fn simnode_processes(master_uri: &str) -> std::collections::BTreeMap<String, Vec<u32>> {
+    let mut out: std::collections::BTreeMap<String, Vec<u32>> = Default::default();
+    let want = format!("ROS_MASTER_URI={master_uri}");
+    for entry in std::fs::read_dir("/proc").into_iter().flatten().flatten() {
+        let Some(pid) = entry
+            .file_name()
+            .to_str()
+            .and_then(|p| p.parse::<u32>().ok())
+        else {
+            continue;
+        };
+        let Ok(cmdline) = std::fs::read(entry.path().join("cmdline")) else {
+            continue;
+        };
+        let args: Vec<&[u8]> = cmdline.split(|b| *b == 0).collect();
+        if args.get(1) != Some(&&b"simnode"[..]) {
+            continue;
+        }
+        let Some(name) = args
+            .windows(2)
+            .find(|w| w[0] == b"--name")
+            .map(|w| String::from_utf8_lossy(w[1]).into_owned())
+        else {
+            continue;
+        };
+        let environ = std::fs::read(entry.path().join("environ")).unwrap_or_default();
+        if environ.split(|b| *b == 0).any(|v| v == want.as_bytes()) {
+            out.entry(name).or_default().push(pid);
+        }
+    }
+    out
 }
 
 fn dechunk(body: &str) -> String {
