@@ -15,8 +15,8 @@
 
 use std::collections::BTreeMap;
 
-use configbot_dataplane::Graph;
-use configbot_dataplane::policy::{self, EdgeSelector, PolicyConfig};
+use configbot_dataplane::policy::{self, AppOf, EdgeSelector, PolicyConfig};
+use configbot_dataplane::{EdgeId, Graph};
 use configbot_manifests::performance_spec::KnobStatus;
 use configbot_manifests::{AdaptorRate, PerformanceSpecSpec, ResourceConfig, RobotStackSpec};
 use serde::{Deserialize, Serialize};
@@ -70,21 +70,38 @@ pub enum KnobError {
     Space(String),
 }
 
-/// The inputs non-core apps claim in other apps' nodes (`App::inputs`), as
-/// (topic, subscriber), each with whether any claiming app has a metric (an
-/// input that feeds no measured app is pinned like a metric-less node).
-fn claimed_inputs(
-    stack: &RobotStackSpec,
-    spec: &PerformanceSpecSpec,
-) -> BTreeMap<(String, String), bool> {
-    let mut out: BTreeMap<(String, String), bool> = BTreeMap::new();
+/// The inputs non-core apps claim in other apps' nodes (`App::inputs`),
+/// each with whether any claiming app has a metric (an input that feeds no
+/// measured app is pinned like a metric-less node).
+fn claimed_inputs(stack: &RobotStackSpec, spec: &PerformanceSpecSpec) -> BTreeMap<EdgeId, bool> {
+    let mut out: BTreeMap<EdgeId, bool> = BTreeMap::new();
     for app in stack.apps.iter().filter(|a| !a.core) {
         let measured = spec.metrics.iter().any(|m| m.app == app.name);
         for i in &app.inputs {
-            *out.entry((i.topic.clone(), i.node.clone())).or_default() |= measured;
+            let edge = EdgeId {
+                topic: i.topic.clone(),
+                subscriber: i.node.clone(),
+            };
+            *out.entry(edge).or_default() |= measured;
         }
     }
     out
+}
+
+/// The stack's apps as the adaptor policy reads them: each node's core
+/// flag, and the inputs non-core apps claim (adapted as their own).
+struct StackApps<'a> {
+    core: &'a BTreeMap<&'a str, bool>,
+    claimed: &'a BTreeMap<EdgeId, bool>,
+}
+
+impl AppOf for StackApps<'_> {
+    fn is_core(&self, node: &str) -> Option<bool> {
+        self.core.get(node).copied()
+    }
+    fn claims(&self, edge: &EdgeId) -> bool {
+        self.claimed.contains_key(edge)
+    }
 }
 
 /// Name of a CPU knob.
@@ -109,6 +126,10 @@ pub fn derive(
     let cpu = &spec.knobs.cpu;
     let feeds = feeds_a_metric(graph, spec);
     let claimed = claimed_inputs(stack, spec);
+    let core_of: BTreeMap<&str, bool> = stack
+        .nodes()
+        .map(|(app, n)| (n.name.as_str(), app.core))
+        .collect();
     let mut knobs = Vec::new();
     for (app, node) in stack.nodes() {
         if !graph.nodes.contains_key(&node.name) {
@@ -140,11 +161,10 @@ pub fn derive(
     }
     let a = &spec.knobs.adaptors;
     if a.enabled {
-        let core_of: BTreeMap<&str, bool> = stack
-            .nodes()
-            .map(|(app, n)| (n.name.as_str(), app.core))
-            .collect();
-        let apps = |n: &str| core_of.get(n).copied();
+        let apps = StackApps {
+            core: &core_of,
+            claimed: &claimed,
+        };
         let sel = |s: &configbot_manifests::performance_spec::EdgeSelector| EdgeSelector {
             topic: s.topic.clone(),
             subscriber: s.subscriber.clone(),
@@ -155,13 +175,6 @@ pub fn derive(
             ..PolicyConfig::default()
         };
         cfg.exclude.extend(a.exclude.iter().map(sel));
-        // Inputs a non-core app claims in another app's node are adapted
-        // like its own inputs (see `App::inputs`).
-        cfg.include
-            .extend(claimed.keys().map(|(topic, node)| EdgeSelector {
-                topic: topic.clone(),
-                subscriber: Some(node.clone()),
-            }));
         for e in policy::select_adaptor_edges(graph, rates, &apps, &cfg) {
             let Some(&source) = rates.get(&e.topic) else {
                 continue;
@@ -169,8 +182,7 @@ pub fn derive(
             if source <= a.min_rate_hz {
                 continue;
             }
-            let restricts_non_core = apps(&e.subscriber) == Some(false)
-                || claimed.contains_key(&(e.topic.clone(), e.subscriber.clone()));
+            let restricts_non_core = apps.is_core(&e.subscriber) == Some(false) || apps.claims(&e);
             knobs.push(KnobDef {
                 name: adaptor_knob_name(&e.topic, &e.subscriber),
                 target: KnobTarget::Adaptor {
@@ -183,10 +195,6 @@ pub fn derive(
             });
         }
     }
-    let core_of: BTreeMap<&str, bool> = stack
-        .nodes()
-        .map(|(app, n)| (n.name.as_str(), app.core))
-        .collect();
     // A knob acting only on a non-core node that feeds no metric is pinned.
     let acts_on = |k: &KnobDef| match &k.target {
         KnobTarget::Cpu { node } => node.clone(),
@@ -194,7 +202,10 @@ pub fn derive(
     };
     let idle = |k: &KnobDef| {
         if let KnobTarget::Adaptor { topic, subscriber } = &k.target
-            && let Some(measured) = claimed.get(&(topic.clone(), subscriber.clone()))
+            && let Some(measured) = claimed.get(&EdgeId {
+                topic: topic.clone(),
+                subscriber: subscriber.clone(),
+            })
         {
             return !measured;
         }
