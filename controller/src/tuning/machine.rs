@@ -109,7 +109,7 @@ impl Env<'_> {
     /// [`measure::near_boundary`]): enough windows for the count rule, and at
     /// least twice the trial.
     fn extended_trial_ms(&self) -> u64 {
-        (measure::COUNTED_WINDOWS as u64 * 1000).max(2 * self.trial_ms())
+        (measure::BOUNDARY_WINDOWS as u64 * 1000).max(2 * self.trial_ms())
     }
     fn startup_timeout_ms(&self) -> u64 {
         (self.spec.tuning.startup_timeout_seconds * 1000.0).round() as u64

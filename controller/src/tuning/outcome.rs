@@ -329,7 +329,32 @@ pub fn after_tip(
     Some(drain_first(run, env, verify))
 }
 
+/// Why a verification failed, for its event: too few windows held, or they
+/// held but their spread predicts misses (the bound of [`measure::robust_value`]).
+pub fn shortfall(defs: &[MetricDef], eval: &measure::Evaluation) -> String {
+    let held = format!("{:.1} % of the windows", eval.satisfaction * 100.0);
+    if eval.satisfaction < SATISFIED {
+        return format!("held in only {held}");
+    }
+    let core = defs.iter().filter(|d| d.core);
+    match core
+        .zip(&eval.constraints)
+        .find(|(d, v)| !d.holds(**v))
+    {
+        Some((d, v)) => format!(
+            "held in {held}, but their spread predicts misses: {} of {:.1} by mean {} 2.33·sd, target {}",
+            d.name,
+            v,
+            if d.at_least { "−" } else { "+" },
+            d.target_text()
+        ),
+        None => format!("held in {held}"),
+    }
+}
+
 /// A verification measured: monitor the candidate, or try the next one.
+/// It holds when ≥ [`SATISFIED`] of its windows held and every core
+/// constraint's bound holds over them (the same rule as a trial's).
 #[allow(clippy::too_many_arguments)]
 pub fn verified(
     run: &mut Run,
@@ -340,9 +365,9 @@ pub fn verified(
     r: &MeasureReport,
     out: &mut Vec<Output>,
 ) -> State {
-    let sat = measure::satisfaction(defs, r);
-    if sat >= SATISFIED {
-        let eval = measure::evaluate(defs, r, env.spec.tuning.scalarization);
+    let eval = measure::evaluate(defs, r, env.spec.tuning.scalarization);
+    let sat = eval.satisfaction;
+    if sat >= SATISFIED && eval.feasible {
         out.push(normal(
             "Satisfied",
             format!(
@@ -392,10 +417,7 @@ pub fn verified(
         Candidate::Trial { index } => {
             out.push(warning(
                 "VerificationFailed",
-                format!(
-                    "trial {index} held in only {:.1} % of the windows",
-                    sat * 100.0
-                ),
+                format!("trial {index} {}", shortfall(defs, &eval)),
             ));
             run.rejected.push(index);
             match run.tipped.take() {
@@ -411,9 +433,9 @@ pub fn verified(
             out.push(warning(
                 "VerificationFailed",
                 format!(
-                    "trial {index} backed off to {:.0} % held in only {:.1} % of the windows",
+                    "trial {index} backed off to {:.0} % {}",
                     fraction * 100.0,
-                    sat * 100.0
+                    shortfall(defs, &eval)
                 ),
             ));
             back_off(run, env, defs, index, fraction, out)

@@ -552,8 +552,8 @@ fn a_run_whose_objectives_are_all_capped_stops_early_and_verifies() {
 fn a_trial_near_the_boundary_is_measured_longer_not_discarded() {
     let (st, sp) = (stack(), spec(0.0, 20));
     let env = env(&st, &sp);
-    // Five windows on target but spread: the normal bound misses 35.
-    let spread = [36.0, 44.0, 35.0, 43.0, 36.0];
+    // Five windows on target but spread: the normal bound misses 35 (34.0).
+    let spread = [37.0, 40.0, 36.0, 40.0, 38.0];
     let (run, out) = baseline_then_first_trial(&env, &BAD, report(&spread, 2.0));
     assert_eq!(reasons(&out), vec!["NearBoundary"]);
     assert!(run.trials.is_empty());
@@ -569,10 +569,17 @@ fn a_trial_near_the_boundary_is_measured_longer_not_discarded() {
         Effect::Measure(measure::request(&env.defs(), &[], 5000, 1000)),
         "on to ten windows"
     );
-    // Five more windows, all on target: ten windows count; feasible.
-    let (run, out) = step(run, report(&spread, 2.0), &env);
+    // Five steadier windows: the ten windows' bound holds (35.5); feasible.
+    let steady = [39.0, 38.0, 39.0, 39.0, 38.0];
+    let (longer, out) = step(run.clone(), report(&steady, 2.0), &env);
     assert_eq!(reasons(&out), vec!["Trial"]);
-    assert!(run.trials[0].feasible(), "{:?}", run.trials[0].eval);
+    assert!(longer.trials[0].feasible(), "{:?}", longer.trials[0].eval);
+    // Five more as spread: every window of ten held, yet the bound (34.3)
+    // predicts misses, so the trial is infeasible however many held.
+    let (longer, out) = step(run, report(&spread, 2.0), &env);
+    assert_eq!(reasons(&out), vec!["Trial", "Unsat"], "the corner missed");
+    assert!(!longer.trials[0].feasible());
+    assert_eq!(longer.trials[0].eval.satisfaction, 1.0);
     // A trial that misses in most windows is not near: recorded at once.
     let mostly_low = [30.0, 36.0, 30.0, 30.0, 30.0];
     let (run, out) = baseline_then_first_trial(&env, &BAD, report(&mostly_low, 2.0));
