@@ -9,9 +9,9 @@ use std::path::PathBuf;
 use std::sync::Arc;
 
 use configbot_agent::client::AgentClient;
-use configbot_agent::measure::{MeasureReport, MeasureRequest};
 use configbot_agent::{AgentEvent, NodeRuntime, RuntimeEvent};
-use configbot_dataplane::Graph;
+use configbot_api::graph::Graph;
+use configbot_api::measure::{MeasureReport, MeasureRequest};
 use configbot_manifests::{Kind, ResourceConfig, RobotStack};
 use tokio::sync::broadcast;
 

@@ -33,13 +33,13 @@ use axum::routing::{get, post, put};
 use axum::{Json, Router};
 use serde_json::json;
 
+use configbot_api::measure::{MeasureReport, MeasureRequest};
 use configbot_manifests::{Manifest, ResourceConfig};
 
 use crate::agent::error_chain;
 use crate::error::Error;
 use crate::events::RuntimeEvent;
 use crate::limits;
-use crate::measure::{MeasureReport, MeasureRequest};
 use crate::runtime::NodeRuntime;
 use crate::spec::StackSpec;
 

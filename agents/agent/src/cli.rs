@@ -174,7 +174,7 @@ pub fn options(args: &AgentArgs) -> Result<RuntimeOptions> {
                 ..Ros1Config::default()
             },
             db_path: args.ros_db.clone(),
-            policy: configbot_dataplane::policy::PolicyConfig::default(),
+            policy: configbot_api::policy::PolicyConfig::default(),
         }),
         monitor: args.monitor.preference(),
     })

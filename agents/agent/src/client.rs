@@ -8,7 +8,8 @@
 use std::path::PathBuf;
 use std::time::Duration;
 
-use configbot_dataplane::Graph;
+use configbot_api::graph::Graph;
+use configbot_api::measure::{MeasureReport, MeasureRequest};
 use configbot_manifests::{ResourceConfig, RobotStack};
 use http_body_util::{BodyExt, Full};
 use hyper::body::{Bytes, Incoming};
@@ -20,7 +21,6 @@ use tokio::sync::broadcast;
 
 use crate::agent::NodeStatus;
 use crate::events::RuntimeEvent;
-use crate::measure::{MeasureReport, MeasureRequest};
 
 /// Where the agent listens.
 #[derive(Debug, Clone, PartialEq, Eq)]

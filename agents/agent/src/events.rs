@@ -1,7 +1,7 @@
 //! Events the agent streams to the controller (NDJSON on `/v1/events`).
 
+use configbot_api::graph::GraphEvent;
 use configbot_cgroups::NodeName;
-use configbot_dataplane::GraphEvent;
 use serde::{Deserialize, Serialize};
 
 use crate::policy::ExitKind;

@@ -15,7 +15,6 @@ pub mod error;
 pub mod events;
 pub mod limits;
 pub mod manifest;
-pub mod measure;
 pub mod metrics;
 pub mod policy;
 pub mod procfs;

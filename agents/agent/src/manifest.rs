@@ -28,7 +28,7 @@ impl StackSpec {
                     .inputs
                     .iter()
                     .filter(|_| !app.core)
-                    .map(|i| configbot_dataplane::EdgeId {
+                    .map(|i| configbot_api::graph::EdgeId {
                         topic: i.topic.clone(),
                         subscriber: i.node.clone(),
                     })

@@ -25,9 +25,10 @@ use std::path::PathBuf;
 use std::sync::{Arc, Mutex, MutexGuard, RwLock};
 use std::time::Duration;
 
+use configbot_api::graph::{EdgeId, Graph, GraphEvent};
+use configbot_api::policy::{AppOf, PolicyConfig};
 use configbot_cgroups::CgroupBackend;
-use configbot_dataplane::policy::{AppOf, PolicyConfig};
-use configbot_dataplane::{DataPlane, Graph, GraphEvent};
+use configbot_dataplane::DataPlane;
 use configbot_manifests::RobotStack;
 use configbot_procmon::{MonitorConfig, MonitorHandle, Preference, ProcessMonitor};
 use configbot_ros1::{Ros1Config, Ros1DataPlane, placement_from_apps};
@@ -121,14 +122,14 @@ pub(crate) fn unix_ms() -> u64 {
 #[derive(Debug, Default)]
 struct AppMap {
     core: BTreeMap<String, bool>,
-    claimed: std::collections::BTreeSet<configbot_dataplane::EdgeId>,
+    claimed: std::collections::BTreeSet<EdgeId>,
 }
 
 impl AppOf for AppMap {
     fn is_core(&self, node: &str) -> Option<bool> {
         self.core.get(node).copied()
     }
-    fn claims(&self, edge: &configbot_dataplane::EdgeId) -> bool {
+    fn claims(&self, edge: &EdgeId) -> bool {
         self.claimed.contains(edge)
     }
 }
@@ -143,7 +144,7 @@ impl AppOf for LiveApps {
             .unwrap_or_else(std::sync::PoisonError::into_inner)
             .is_core(node)
     }
-    fn claims(&self, edge: &configbot_dataplane::EdgeId) -> bool {
+    fn claims(&self, edge: &EdgeId) -> bool {
         self.0
             .read()
             .unwrap_or_else(std::sync::PoisonError::into_inner)

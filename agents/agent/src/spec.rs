@@ -24,7 +24,7 @@ pub struct AppSpec {
     /// Inputs of other apps' nodes this (non-core) app claims: adaptors are
     /// placed on them as on its own inputs (the manifest's `apps[].inputs`).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
-    pub inputs: Vec<configbot_dataplane::EdgeId>,
+    pub inputs: Vec<configbot_api::graph::EdgeId>,
 }
 
 /// One ROS node: how the agent gets its process.

@@ -6,8 +6,8 @@ mod common;
 
 use std::time::{Duration, Instant};
 
-use configbot_agent::measure::{MeasureRequest, Probe};
 use configbot_agent::{AgentEvent, RuntimeEvent, StackSpec};
+use configbot_api::measure::{MeasureRequest, Probe};
 use configbot_manifests::{AdaptorRate, ResourceConfig};
 use configbot_procmon::{MonitorKind, Preference};
 
@@ -79,8 +79,8 @@ async fn ros_nodes_are_adopted_limited_adapted_and_measured() {
         match ev {
             RuntimeEvent::GraphChanged { events } => {
                 graph_listener |= events.iter().any(|g| {
-                    matches!(g, configbot_dataplane::GraphEvent::NodeAdded(n)
-                        | configbot_dataplane::GraphEvent::NodeChanged(n) if n.name == "/listener")
+                    matches!(g, configbot_api::graph::GraphEvent::NodeAdded(n)
+                        | configbot_api::graph::GraphEvent::NodeChanged(n) if n.name == "/listener")
                 });
             }
             RuntimeEvent::Agent(AgentEvent::NodeAdopted { node, pids }) => {
@@ -542,7 +542,7 @@ async fn client_over_tcp_needs_the_token() {
     assert_eq!(inv[0].name.as_str(), "/s");
     assert_eq!(
         good.graph().await.unwrap(),
-        configbot_dataplane::Graph::default()
+        configbot_api::graph::Graph::default()
     );
     let e = good
         .measure(&MeasureRequest {

@@ -8,7 +8,7 @@ mod common;
 use std::time::{Duration, Instant};
 
 use configbot_agent::NodeRuntime;
-use configbot_agent::measure::{MeasureRequest, Probe};
+use configbot_api::measure::{MeasureRequest, Probe};
 
 use common::rt::{RtEnv, eventually, robot_stack, stack_yaml};
 

@@ -3,143 +3,18 @@
 //! adaptors that limit the rate a single subscriber receives.
 //!
 //! A backend (ROS 1 today, ROS 2 later) implements [`DataPlane`]; the agent
-//! daemon only talks to this trait. The adaptor selection policy is a pure
-//! function in [`policy`].
+//! daemon only talks to this trait. The data the trait speaks in (graph,
+//! stats, edges, adaptor settings) is plain wire data in
+//! [`configbot_api::graph`], re-exported here as the trait's vocabulary; the
+//! adaptor selection policy is the pure [`configbot_api::policy`].
 
-pub mod policy;
+use std::collections::BTreeMap;
 
-use std::collections::{BTreeMap, BTreeSet};
-
-use serde::{Deserialize, Serialize};
-
-/// One node of the graph.
-#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
-pub struct NodeInfo {
-    /// Fully qualified node name, e.g. `/talker`.
-    pub name: String,
-    /// Backend-specific address of the node (ROS 1: slave XML-RPC URI).
-    pub uri: String,
-    /// Process id reported by the node, when it answered.
-    pub pid: Option<u32>,
-}
-
-/// One topic with its message type.
-#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
-pub struct TopicInfo {
-    pub name: String,
-    pub msg_type: String,
-    pub publishers: BTreeSet<String>,
-    pub subscribers: BTreeSet<String>,
-}
-
-/// A publisher→subscriber edge on one topic.
-#[derive(Debug, Clone, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
-pub struct Edge {
-    pub topic: String,
-    pub publisher: String,
-    pub subscriber: String,
-}
-
-/// A snapshot of the whole graph.
-#[derive(Debug, Clone, Default, PartialEq, Eq, Serialize, Deserialize)]
-pub struct Graph {
-    /// Nodes by name.
-    pub nodes: BTreeMap<String, NodeInfo>,
-    /// Topics by name.
-    pub topics: BTreeMap<String, TopicInfo>,
-}
-
-impl Graph {
-    /// Every publisher→subscriber edge, sorted.
-    pub fn edges(&self) -> Vec<Edge> {
-        let mut out = Vec::new();
-        for t in self.topics.values() {
-            for p in &t.publishers {
-                for s in &t.subscribers {
-                    out.push(Edge {
-                        topic: t.name.clone(),
-                        publisher: p.clone(),
-                        subscriber: s.clone(),
-                    });
-                }
-            }
-        }
-        out
-    }
-
-    /// The changes that turn `self` into `next`, as events.
-    pub fn diff(&self, next: &Graph) -> Vec<GraphEvent> {
-        let mut ev = Vec::new();
-        for (name, n) in &next.nodes {
-            match self.nodes.get(name) {
-                None => ev.push(GraphEvent::NodeAdded(n.clone())),
-                Some(old) if old != n => ev.push(GraphEvent::NodeChanged(n.clone())),
-                Some(_) => {}
-            }
-        }
-        for name in self.nodes.keys() {
-            if !next.nodes.contains_key(name) {
-                ev.push(GraphEvent::NodeRemoved(name.clone()));
-            }
-        }
-        let old: BTreeSet<Edge> = self.edges().into_iter().collect();
-        let new: BTreeSet<Edge> = next.edges().into_iter().collect();
-        ev.extend(new.difference(&old).cloned().map(GraphEvent::EdgeAdded));
-        ev.extend(old.difference(&new).cloned().map(GraphEvent::EdgeRemoved));
-        ev
-    }
-}
-
-/// A change in the graph.
-#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
-pub enum GraphEvent {
-    NodeAdded(NodeInfo),
-    /// Same name, new uri or pid.
-    NodeChanged(NodeInfo),
-    NodeRemoved(String),
-    EdgeAdded(Edge),
-    EdgeRemoved(Edge),
-}
-
-/// Rate statistics of one message stream, measured like `rostopic hz`.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-pub struct TopicStats {
-    /// 1 / mean inter-arrival time over the window.
-    pub rate_hz: f64,
-    /// Inter-arrival times in seconds.
-    pub min_interval_s: f64,
-    pub max_interval_s: f64,
-    pub stddev_interval_s: f64,
-    /// Low (5th) percentile of the rate over one-second sub-windows.
-    pub low_rate_hz: f64,
-    pub bytes_per_s: f64,
-    /// Messages in the window.
-    pub samples: usize,
-    /// Window span in seconds.
-    pub window_s: f64,
-}
-
-/// One adapted edge: everything on `topic` delivered to `subscriber`.
-#[derive(Debug, Clone, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
-pub struct EdgeId {
-    pub topic: String,
-    pub subscriber: String,
-}
-
-/// The setting of one adaptor.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
-pub struct AdaptorSetting {
-    /// Maximum forwarded rate; `None` = pass-through.
-    pub rate_hz: Option<f64>,
-}
-
-/// Counters of one adaptor since it was created.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
-pub struct EdgeCounters {
-    pub forwarded: u64,
-    pub dropped: u64,
-    pub bytes: u64,
-}
+// The trait's vocabulary: the types its methods take and return, and what
+// those are made of.
+pub use configbot_api::graph::{
+    AdaptorSetting, Edge, EdgeCounters, EdgeId, Graph, GraphEvent, NodeInfo, TopicInfo, TopicStats,
+};
 
 /// Errors of a data-plane backend.
 #[derive(Debug, thiserror::Error)]
@@ -190,62 +65,4 @@ pub trait DataPlane: Send + Sync {
     fn subscribe_events(&self) -> tokio::sync::broadcast::Receiver<GraphEvent>;
     /// Refreshes the graph (pids, liveness) now instead of at the next period.
     fn wake(&self);
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    fn node(n: &str) -> NodeInfo {
-        NodeInfo {
-            name: n.into(),
-            uri: format!("http://x/{n}"),
-            pid: None,
-        }
-    }
-
-    fn graph(pubs: &[&str], subs: &[&str]) -> Graph {
-        let mut g = Graph::default();
-        for n in pubs.iter().chain(subs) {
-            g.nodes.insert((*n).into(), node(n));
-        }
-        g.topics.insert(
-            "/t".into(),
-            TopicInfo {
-                name: "/t".into(),
-                msg_type: "std_msgs/String".into(),
-                publishers: pubs.iter().map(|s| s.to_string()).collect(),
-                subscribers: subs.iter().map(|s| s.to_string()).collect(),
-            },
-        );
-        g
-    }
-
-    #[test]
-    fn edges_are_publisher_subscriber_pairs() {
-        let g = graph(&["/a", "/b"], &["/c"]);
-        let e = g.edges();
-        assert_eq!(e.len(), 2);
-        assert_eq!(e[0].publisher, "/a");
-        assert_eq!(e[1].publisher, "/b");
-        assert!(e.iter().all(|e| e.subscriber == "/c"));
-    }
-
-    #[test]
-    fn diff_reports_added_and_removed_nodes_and_edges() {
-        let a = graph(&["/a"], &["/c"]);
-        let b = graph(&["/a"], &["/d"]);
-        let ev = a.diff(&b);
-        assert!(ev.contains(&GraphEvent::NodeAdded(node("/d"))));
-        assert!(ev.contains(&GraphEvent::NodeRemoved("/c".into())));
-        assert!(
-            ev.iter()
-                .any(|e| matches!(e, GraphEvent::EdgeAdded(x) if x.subscriber == "/d"))
-        );
-        assert!(
-            ev.iter()
-                .any(|e| matches!(e, GraphEvent::EdgeRemoved(x) if x.subscriber == "/c"))
-        );
-        assert!(a.diff(&a).is_empty());
-    }
 }

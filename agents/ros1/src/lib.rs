@@ -22,7 +22,7 @@ use std::path::Path;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
-use configbot_dataplane::policy::{AppOf, PolicyConfig};
+use configbot_api::policy::{AppOf, PolicyConfig};
 use configbot_dataplane::{
     AdaptorSetting, DataPlane, DataPlaneError, EdgeCounters, EdgeId, Graph, GraphEvent, NodeInfo,
     TopicInfo, TopicStats,
@@ -536,7 +536,7 @@ mod tests {
 
     #[test]
     fn placement_follows_apps_and_lists() {
-        use configbot_dataplane::policy::EdgeSelector;
+        use configbot_api::policy::EdgeSelector;
         let apps: Arc<dyn AppOf + Send + Sync> = Arc::new(|n: &str| match n {
             "/det" => Some(false),
             "/nav" | "/cam" => Some(true),

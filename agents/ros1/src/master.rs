@@ -109,7 +109,7 @@ impl MasterHandler {
                     let (pubs, fx) =
                         lock(&core.state).register_subscriber(&caller, &api, &topic, &ty);
                     let place = !settings.contains_key(&id)
-                        && configbot_dataplane::policy::adaptable_type(&ty)
+                        && configbot_api::policy::adaptable_type(&ty)
                         && (core.placement)(&id, &pubs);
                     if place {
                         settings.insert(id, Default::default());

@@ -7,7 +7,7 @@ mod common;
 use std::time::{Duration, Instant};
 
 use common::*;
-use configbot_dataplane::policy::PolicyConfig;
+use configbot_api::policy::PolicyConfig;
 use configbot_dataplane::{AdaptorSetting, DataPlane, EdgeId, GraphEvent};
 use configbot_ros1::{Placement, Ros1Config, Ros1DataPlane, placement_from_apps};
 
@@ -541,7 +541,7 @@ fn placement_adapts_non_core_subscribers_at_subscribe_time() {
     let nav = unique("nav");
     let det_node = format!("/{detector}");
     let d2 = det_node.clone();
-    let apps: std::sync::Arc<dyn configbot_dataplane::policy::AppOf + Send + Sync> =
+    let apps: std::sync::Arc<dyn configbot_api::policy::AppOf + Send + Sync> =
         std::sync::Arc::new(move |n: &str| Some(n != d2));
     let a = start_agent_with(
         Duration::from_secs(30),

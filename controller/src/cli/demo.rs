@@ -11,8 +11,8 @@ use std::time::{Duration, Instant};
 
 use clap::Args;
 use configbot_agent::agent::NodeStatus;
-use configbot_agent::measure::MeasureReport;
-use configbot_dataplane::Graph;
+use configbot_api::graph::Graph;
+use configbot_api::measure::MeasureReport;
 use configbot_manifests::{Kind, Manifest, PerformanceSpec, RobotStack};
 use serde_json::{Value, json};
 
@@ -590,7 +590,7 @@ mod tests {
         let mut graph = Graph::default();
         graph.topics.insert(
             "/scan".into(),
-            configbot_dataplane::TopicInfo {
+            configbot_api::graph::TopicInfo {
                 name: "/scan".into(),
                 msg_type: "*".into(),
                 publishers: ["/lidar".to_string()].into(),

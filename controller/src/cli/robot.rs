@@ -30,7 +30,7 @@ pub fn runtime_options(dir: &Path, args: &RobotArgs) -> anyhow::Result<RuntimeOp
                 ..configbot_ros1::Ros1Config::default()
             },
             db_path: dir.join("ros1.db"),
-            policy: configbot_dataplane::policy::PolicyConfig::default(),
+            policy: configbot_api::policy::PolicyConfig::default(),
         }),
         monitor: args.monitor.preference(),
     })

@@ -15,8 +15,8 @@
 
 use std::collections::BTreeMap;
 
-use configbot_dataplane::policy::{self, AppOf, EdgeSelector, PolicyConfig};
-use configbot_dataplane::{EdgeId, Graph};
+use configbot_api::graph::{EdgeId, Graph};
+use configbot_api::policy::{self, AppOf, EdgeSelector, PolicyConfig};
 use configbot_manifests::performance_spec::KnobStatus;
 use configbot_manifests::{AdaptorRate, PerformanceSpecSpec, ResourceConfig, RobotStackSpec};
 use serde::{Deserialize, Serialize};
@@ -251,7 +251,7 @@ pub fn feeds_a_metric(
     let mut frontier: Vec<String> = reached.iter().cloned().collect();
     while let Some(n) = frontier.pop() {
         for t in graph.topics.values().filter(|t| {
-            t.subscribers.contains(&n) && configbot_dataplane::policy::adaptable_type(&t.msg_type)
+            t.subscribers.contains(&n) && configbot_api::policy::adaptable_type(&t.msg_type)
         }) {
             for p in &t.publishers {
                 if reached.insert(p.clone()) {
@@ -476,7 +476,7 @@ fn round(v: f64, per: f64) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use configbot_dataplane::{NodeInfo, TopicInfo};
+    use configbot_api::graph::{NodeInfo, TopicInfo};
     use configbot_manifests::performance_spec::NodeCpuBounds;
 
     fn stack() -> RobotStackSpec {

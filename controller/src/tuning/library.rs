@@ -7,7 +7,7 @@
 
 use std::collections::BTreeMap;
 
-use configbot_dataplane::Graph;
+use configbot_api::graph::Graph;
 use configbot_manifests::{
     API_VERSION, ConfigProfile, ConfigProfileSpec, Kind, ObjectMeta, PerformanceSpecSpec,
     ProfileContext, ProfileTrial, ResourceConfig, RobotStack,
@@ -209,7 +209,7 @@ pub fn prior_observations(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use configbot_dataplane::NodeInfo;
+    use configbot_api::graph::NodeInfo;
 
     fn stack() -> RobotStack {
         serde_json::from_value(serde_json::json!({

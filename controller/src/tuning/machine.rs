@@ -18,8 +18,8 @@
 
 use std::time::Duration;
 
-use configbot_agent::measure::{MeasureReport, MeasureRequest};
-use configbot_dataplane::Graph;
+use configbot_api::graph::Graph;
+use configbot_api::measure::{MeasureReport, MeasureRequest};
 use configbot_manifests::{
     ConfigProfile, PerformanceSpecSpec, ProfileContext, ResourceConfig, RobotStack,
 };

@@ -25,7 +25,7 @@
 
 use std::collections::BTreeMap;
 
-use configbot_agent::measure::{MeasureReport, MeasureRequest, Probe};
+use configbot_api::measure::{MeasureReport, MeasureRequest, Probe};
 use configbot_manifests::performance_spec::{Bound, Scalarization};
 use configbot_manifests::{PerformanceSpecSpec, RobotStackSpec};
 use serde::{Deserialize, Serialize};
@@ -373,7 +373,7 @@ pub fn concat(a: &MeasureReport, b: &MeasureReport) -> MeasureReport {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use configbot_agent::measure::ProbeSeries;
+    use configbot_api::measure::ProbeSeries;
 
     fn def(name: &str, core: bool, at_least: bool, target: f64) -> MetricDef {
         MetricDef {

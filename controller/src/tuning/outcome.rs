@@ -6,8 +6,8 @@
 
 use std::collections::BTreeSet;
 
-use configbot_agent::measure::MeasureReport;
-use configbot_dataplane::Graph;
+use configbot_api::graph::Graph;
+use configbot_api::measure::MeasureReport;
 use configbot_manifests::performance_spec::RemediationAction;
 use configbot_manifests::{ProfileContext, ProfileTrial, ResourceConfig, RobotStack};
 use configbot_optimizer::Observation;
@@ -337,10 +337,7 @@ pub fn shortfall(defs: &[MetricDef], eval: &measure::Evaluation) -> String {
         return format!("held in only {held}");
     }
     let core = defs.iter().filter(|d| d.core);
-    match core
-        .zip(&eval.constraints)
-        .find(|(d, v)| !d.holds(**v))
-    {
+    match core.zip(&eval.constraints).find(|(d, v)| !d.holds(**v)) {
         Some((d, v)) => format!(
             "held in {held}, but their spread predicts misses: {} of {:.1} by mean {} 2.33·sd, target {}",
             d.name,

@@ -13,8 +13,8 @@ use std::future::Future;
 use std::pin::Pin;
 use std::time::Duration;
 
-use configbot_agent::measure::{MeasureReport, MeasureRequest};
-use configbot_dataplane::{Graph, GraphEvent};
+use configbot_api::graph::{Graph, GraphEvent};
+use configbot_api::measure::{MeasureReport, MeasureRequest};
 use configbot_manifests::ResourceConfig;
 use tokio::sync::broadcast;
 

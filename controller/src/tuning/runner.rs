@@ -122,7 +122,7 @@ pub fn new_node_exec(
     execs: &std::collections::VecDeque<(u32, u64)>,
     old_nodes: &[String],
     new_nodes: &[String],
-    graph: &configbot_dataplane::Graph,
+    graph: &configbot_api::graph::Graph,
 ) -> Option<(String, u64)> {
     new_nodes
         .iter()
@@ -705,7 +705,7 @@ impl Drop for TuningManager {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use configbot_dataplane::{Graph, NodeInfo};
+    use configbot_api::graph::{Graph, NodeInfo};
 
     #[test]
     fn detection_latency_is_measured_from_the_new_nodes_own_exec() {

@@ -4,8 +4,8 @@
 //! the best trial to verify or the Unsat outcome; plus the rules that decide
 //! whether safe exploration applies.
 
-use configbot_agent::measure::MeasureReport;
-use configbot_dataplane::Graph;
+use configbot_api::graph::Graph;
+use configbot_api::measure::MeasureReport;
 use configbot_manifests::{ConfigProfile, ResourceConfig};
 use configbot_optimizer::{Optimizer, Proposal, SafetyFloor, Settings};
 

@@ -24,7 +24,7 @@
 
 use std::time::Duration;
 
-use configbot_agent::measure::MeasureReport;
+use configbot_api::measure::MeasureReport;
 
 use super::measure::MetricDef;
 
@@ -123,7 +123,7 @@ pub fn moving<'a>(defs: &'a [MetricDef], r: &MeasureReport) -> Vec<&'a str> {
 
 #[cfg(test)]
 mod tests {
-    use configbot_agent::measure::{Probe, ProbeSeries};
+    use configbot_api::measure::{Probe, ProbeSeries};
 
     use super::*;
 

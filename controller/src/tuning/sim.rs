@@ -16,8 +16,8 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
-use configbot_agent::measure::{MeasureReport, MeasureRequest, Probe, ProbeSeries};
-use configbot_dataplane::{Graph, NodeInfo, TopicInfo};
+use configbot_api::graph::{Graph, NodeInfo, TopicInfo};
+use configbot_api::measure::{MeasureReport, MeasureRequest, Probe, ProbeSeries};
 use configbot_manifests::ResourceConfig;
 use tokio::sync::{Notify, broadcast};
 

@@ -12,8 +12,8 @@
 
 use std::collections::BTreeSet;
 
-use configbot_agent::measure::MeasureReport;
-use configbot_dataplane::Graph;
+use configbot_api::graph::Graph;
+use configbot_api::measure::MeasureReport;
 use configbot_manifests::RobotStack;
 use serde::{Deserialize, Serialize};
 

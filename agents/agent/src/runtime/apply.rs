@@ -6,8 +6,8 @@
 
 use std::collections::{BTreeMap, BTreeSet};
 
+use configbot_api::graph::{AdaptorSetting, EdgeId};
 use configbot_cgroups::{CpuLimit, DEFAULT_PERIOD_US, NodeName};
-use configbot_dataplane::{AdaptorSetting, EdgeId};
 use configbot_manifests::ResourceConfig;
 
 use super::NodeRuntime;

@@ -11,12 +11,13 @@
 
 use std::time::{Duration, Instant};
 
+use configbot_api::graph::EdgeId;
+use configbot_api::measure::{MeasureReport, MeasureRequest, Probe, ProbeSeries};
 use configbot_cgroups::NodeName;
-use configbot_dataplane::{DataPlane, EdgeId};
+use configbot_dataplane::DataPlane;
 
 use super::NodeRuntime;
 use crate::error::{Error, Result};
-use crate::measure::{MeasureReport, MeasureRequest, Probe, ProbeSeries};
 
 /// Longest window accepted (one hour) and most sub-windows.
 const MAX_DURATION_MS: u64 = 3_600_000;

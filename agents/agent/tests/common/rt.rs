@@ -12,8 +12,8 @@ use std::time::{Duration, Instant};
 
 use configbot_agent::runtime::{NodeRuntime, RosOptions, RuntimeOptions};
 use configbot_agent::{AgentSettings, StackSpec};
+use configbot_api::policy::PolicyConfig;
 use configbot_cgroups::CgroupBackend;
-use configbot_dataplane::policy::PolicyConfig;
 use configbot_manifests::{Manifest, RobotStack};
 use configbot_procmon::Preference;
 use configbot_ros1::Ros1Config;

@@ -512,7 +512,7 @@ fn result(
     stack: &str,
     method: &str,
     defs: &[MetricDef],
-    r: &configbot_agent::measure::MeasureReport,
+    r: &configbot_api::measure::MeasureReport,
     config: Value,
     tuning: Option<TuningCost>,
 ) -> MethodResult {
@@ -684,11 +684,11 @@ fn write_plots(
     if let (Some(core), Some(d), Some(c)) =
         (defs.iter().find(|d| d.core), of("default"), of("configbot"))
     {
-        let report = |v: &[f64]| configbot_agent::measure::MeasureReport {
+        let report = |v: &[f64]| configbot_api::measure::MeasureReport {
             started_unix_ms: 0,
             duration_ms: v.len() as u64 * 1000,
             sub_window_ms: 1000,
-            series: vec![configbot_agent::measure::ProbeSeries {
+            series: vec![configbot_api::measure::ProbeSeries {
                 probe: core.probe.clone(),
                 values: v.to_vec(),
                 mean: 0.0,
@@ -752,7 +752,7 @@ mod tests {
 
     #[test]
     fn a_topic_flows_when_its_probe_saw_messages() {
-        use configbot_agent::measure::{MeasureReport, Probe, ProbeSeries};
+        use configbot_api::measure::{MeasureReport, Probe, ProbeSeries};
         let def = |name: &str, topic: &str| MetricDef::rate_at_least(name, "a", topic, 1.0, true);
         let defs = [
             def("cmd", "/cmd_vel"),

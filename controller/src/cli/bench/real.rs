@@ -348,7 +348,7 @@ async fn measure_from_drained(
     defs: &[MetricDef],
     config: &ResourceConfig,
     secs: u64,
-) -> anyhow::Result<configbot_agent::measure::MeasureReport> {
+) -> anyhow::Result<configbot_api::measure::MeasureReport> {
     if let Some(d) = space.drain_point(&space.from_config(config)) {
         r.apply(&space.to_config(&d)).await?;
         let mut so_far = measure_defs(r, defs, 2).await?;

@@ -14,7 +14,7 @@
 
 mod live;
 
-use configbot_agent::measure::MeasureReport;
+use configbot_api::measure::MeasureReport;
 use serde::Serialize;
 
 pub use self::live::run;
@@ -328,7 +328,7 @@ pub fn summary(t: &Timeline) -> String {
 
 #[cfg(test)]
 mod tests {
-    use configbot_agent::measure::ProbeSeries;
+    use configbot_api::measure::ProbeSeries;
 
     use super::*;
 

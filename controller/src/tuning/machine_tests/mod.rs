@@ -7,8 +7,8 @@ mod remediation;
 mod search;
 mod startup;
 
-use configbot_agent::measure::{MeasureReport, Probe, ProbeSeries};
-use configbot_dataplane::{Graph, NodeInfo, TopicInfo};
+use configbot_api::graph::{Graph, NodeInfo, TopicInfo};
+use configbot_api::measure::{MeasureReport, Probe, ProbeSeries};
 use configbot_manifests::{PerformanceSpec, RobotStack};
 
 use super::*;

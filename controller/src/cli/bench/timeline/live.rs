@@ -10,7 +10,7 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
-use configbot_agent::measure::MeasureReport;
+use configbot_api::measure::MeasureReport;
 use configbot_manifests::Kind;
 use hyper::Method;
 

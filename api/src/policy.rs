@@ -2,10 +2,18 @@
 //! edge when its topic runs above `min_topic_rate_hz` and its publisher or
 //! subscriber belongs to a non-core app; explicit include/exclude lists win.
 //! Pure: the caller supplies the graph, measured rates and the app mapping.
+//!
+//! This is the one rule both sides apply. The agent places adaptors by it at
+//! subscribe time (`configbot_ros1::placement_from_apps` and the ROS 1
+//! master, fed the agent runtime's app mapping: [`PolicyConfig`], [`AppOf`],
+//! [`adaptable_type`]), and the controller's knob space
+//! (`configbot_tuning::knobs`) gives an adaptor-rate knob to the edges
+//! [`select_adaptor_edges`] returns. Neither side keeps a copy of it, so an
+//! edge the controller tunes is an edge the agent adapts.
 
 use std::collections::{BTreeMap, BTreeSet};
 
-use crate::{EdgeId, Graph};
+use crate::graph::{EdgeId, Graph};
 
 /// Which app a node belongs to and whether that app is core.
 pub trait AppOf {
@@ -140,7 +148,7 @@ pub fn select_adaptor_edges(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::TopicInfo;
+    use crate::graph::TopicInfo;
 
     fn g() -> Graph {
         let mut g = Graph::default();

@@ -83,4 +83,43 @@ mod tests {
             }
         );
     }
+
+    /// The bodies of `POST /v1/measure` as the agent has always read and
+    /// written them.
+    #[test]
+    fn wire_format_is_stable() {
+        let req = MeasureRequest {
+            probes: vec![
+                Probe::TopicRate {
+                    topic: "/t".into(),
+                    subscriber: Some("/b".into()),
+                },
+                Probe::CpuUsage { node: "/a".into() },
+            ],
+            duration_ms: 3000,
+            sub_window_ms: 500,
+        };
+        let j = serde_json::to_string(&req).unwrap();
+        assert_eq!(
+            j,
+            r#"{"probes":[{"kind":"topicRate","topic":"/t","subscriber":"/b"},{"kind":"cpuUsage","node":"/a"}],"durationMs":3000,"subWindowMs":500}"#
+        );
+        assert_eq!(serde_json::from_str::<MeasureRequest>(&j).unwrap(), req);
+        let report = MeasureReport {
+            started_unix_ms: 5,
+            duration_ms: 3000,
+            sub_window_ms: 1000,
+            series: vec![ProbeSeries {
+                probe: Probe::CpuUsage { node: "/a".into() },
+                values: vec![0.5, 0.25],
+                mean: 0.375,
+            }],
+        };
+        let j = serde_json::to_string(&report).unwrap();
+        assert_eq!(
+            j,
+            r#"{"startedUnixMs":5,"durationMs":3000,"subWindowMs":1000,"series":[{"probe":{"kind":"cpuUsage","node":"/a"},"values":[0.5,0.25],"mean":0.375}]}"#
+        );
+        assert_eq!(serde_json::from_str::<MeasureReport>(&j).unwrap(), report);
+    }
 }
