@@ -16,7 +16,9 @@ use configbot_manifests::{Kind, ResourceConfig, RobotStack};
 use tokio::sync::broadcast;
 
 use crate::store::Store;
-use crate::tuning::robot::{BoxFuture, Robot, RobotError, RobotEvent};
+use configbot_tuning::monitor::RobotEvent;
+
+use crate::tuning::robot::{BoxFuture, Robot, RobotError};
 
 /// The tuning loop's view of one runtime event; `None` for events it ignores.
 pub fn robot_event(e: &RuntimeEvent) -> Option<RobotEvent> {

@@ -11,11 +11,11 @@ use std::time::Duration;
 
 use configbot_controller::metrics::Metrics;
 use configbot_controller::store::Store;
-use configbot_controller::tuning::machine::{Remedy, State};
 use configbot_controller::tuning::robot::Robot;
 use configbot_controller::tuning::runner::{self, RunnerCtx};
 use configbot_controller::tuning::sim::{SimInput, SimNode, SimRobot};
 use configbot_manifests::Kind;
+use configbot_tuning::machine::{Remedy, State};
 use serde_json::{Value, json};
 
 fn node(
@@ -150,7 +150,7 @@ impl Fixture {
             .clone()
     }
 
-    fn run(&self) -> configbot_controller::tuning::machine::Run {
+    fn run(&self) -> configbot_tuning::machine::Run {
         runner::load_run(&self.store, "default", "nav-spec")
             .unwrap()
             .unwrap()
@@ -166,11 +166,7 @@ impl Fixture {
     }
 
     /// Wait (real time, with a timeout) until `f` holds on the persisted run.
-    async fn until(
-        &self,
-        what: &str,
-        f: impl Fn(&configbot_controller::tuning::machine::Run) -> bool,
-    ) {
+    async fn until(&self, what: &str, f: impl Fn(&configbot_tuning::machine::Run) -> bool) {
         let deadline = tokio::time::Instant::now() + Duration::from_secs(240);
         loop {
             if let Ok(Some(r)) = runner::load_run(&self.store, "default", "nav-spec")
@@ -188,7 +184,7 @@ impl Fixture {
     }
 }
 
-fn monitoring(r: &configbot_controller::tuning::machine::Run, windows: u64) -> bool {
+fn monitoring(r: &configbot_tuning::machine::Run, windows: u64) -> bool {
     matches!(
         r.state,
         State::Monitor {

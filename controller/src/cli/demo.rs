@@ -21,8 +21,8 @@ use crate::client::{Client, Endpoint};
 use crate::report::svg::{Chart, Mark, Rule, Series, colors};
 use crate::robot::EmbeddedRobot;
 use crate::server::{Server, ServerConfig};
-use crate::tuning::measure::{self, MetricDef};
 use crate::tuning::robot::Robot;
+use configbot_tuning::measure::{self, MetricDef};
 
 /// The example stacks, embedded so the demo runs from any directory.
 pub const EXAMPLES: [(&str, &str); 6] = [

@@ -13,9 +13,10 @@ use std::future::Future;
 use std::pin::Pin;
 use std::time::Duration;
 
-use configbot_api::graph::{Graph, GraphEvent};
+use configbot_api::graph::Graph;
 use configbot_api::measure::{MeasureReport, MeasureRequest};
 use configbot_manifests::ResourceConfig;
+use configbot_tuning::monitor::RobotEvent;
 use tokio::sync::broadcast;
 
 /// A boxed, sendable future (keeps [`Robot`] dyn-compatible).
@@ -50,32 +51,6 @@ impl RobotError {
             source: Some(Box::new(e)),
         }
     }
-}
-
-/// What the tuning loop needs to know of the runtime's `RuntimeEvent`s. The
-/// implementation maps each `RuntimeEvent` onto one of these (others → `Other`).
-#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
-#[serde(tag = "type", rename_all = "camelCase")]
-pub enum RobotEvent {
-    /// A process exec seen by the process monitor.
-    #[serde(rename_all = "camelCase")]
-    ProcessExec {
-        pid: u32,
-        comm: Option<String>,
-        at_unix_ms: u64,
-    },
-    #[serde(rename_all = "camelCase")]
-    ProcessExit { pid: u32 },
-    /// The ROS graph changed (nodes or edges came or went).
-    #[serde(rename_all = "camelCase")]
-    GraphChanged { events: Vec<GraphEvent> },
-    #[serde(rename_all = "camelCase")]
-    AppStopped { app: String },
-    #[serde(rename_all = "camelCase")]
-    AppStarted { app: String },
-    /// Any other runtime event, by its type name.
-    #[serde(rename_all = "camelCase")]
-    Other { name: String },
 }
 
 /// A robot as the tuning loop drives it. Every method may be called

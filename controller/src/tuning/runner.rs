@@ -18,11 +18,13 @@ use serde::{Deserialize, Serialize};
 use tokio::sync::broadcast;
 use tokio::task::JoinHandle;
 
-use super::library::{self, CONTEXT_LABELS};
-use super::machine::{self, Effect, Env, Input, Output, Recording, Remedy, Run, State};
-use super::monitor::{self, Trigger};
-use super::outcome;
-use super::robot::{Clock, Robot, RobotError, RobotEvent};
+use configbot_tuning::library::{self, CONTEXT_LABELS};
+use configbot_tuning::machine::{self, Effect, Env, Input, Output, Recording, Remedy, Run, State};
+use configbot_tuning::monitor::{self, RobotEvent, Trigger};
+use configbot_tuning::outcome;
+
+use super::profiles;
+use super::robot::{Clock, Robot, RobotError};
 use crate::metrics::{Metrics, PHASES};
 use crate::store::{Store, StoreError};
 
@@ -334,7 +336,7 @@ impl Runner {
                 }
                 self.event(!warning, reason, &message);
             }
-            Output::SaveProfile(p) => match library::save(&self.ctx.store, &p) {
+            Output::SaveProfile(p) => match profiles::save(&self.ctx.store, &p) {
                 Ok(()) => self.event(
                     true,
                     "ProfileSaved",
@@ -371,8 +373,8 @@ impl Runner {
             Effect::Observe => {
                 let graph = robot.graph().await?;
                 let context = library::context(stack, &graph, labels);
-                let known =
-                    library::lookup(&self.ctx.store, &self.ns, &self.name, &context)?.map(Box::new);
+                let known = profiles::lookup(&self.ctx.store, &self.ns, &self.name, &context)?
+                    .map(Box::new);
                 Input::Observed {
                     graph,
                     context,
@@ -559,7 +561,7 @@ impl Runner {
                 .get("status")
                 .and_then(|s| serde_json::from_value(s.clone()).ok())
                 .unwrap_or_default();
-            let new = super::status::status(
+            let new = configbot_tuning::status::status(
                 &old,
                 run,
                 &defs,
@@ -587,7 +589,7 @@ impl Runner {
         Ok(())
     }
 
-    fn metrics(&self, run: &Run, defs: &[super::measure::MetricDef]) {
+    fn metrics(&self, run: &Run, defs: &[configbot_tuning::measure::MetricDef]) {
         let m = &self.ctx.metrics.tuning;
         let (ns, name) = (self.ns.as_str(), self.name.as_str());
         for p in PHASES {

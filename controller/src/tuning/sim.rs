@@ -21,7 +21,9 @@ use configbot_api::measure::{MeasureReport, MeasureRequest, Probe, ProbeSeries};
 use configbot_manifests::ResourceConfig;
 use tokio::sync::{Notify, broadcast};
 
-use super::robot::{BoxFuture, Clock, Robot, RobotError, RobotEvent};
+use configbot_tuning::monitor::RobotEvent;
+
+use super::robot::{BoxFuture, Clock, Robot, RobotError};
 
 /// One input of a node: messages of `topic` cost `cost` CPU-seconds each.
 #[derive(Debug, Clone, PartialEq)]

@@ -30,10 +30,10 @@ use self::owner::Current;
 use super::demo::{
     PrivateRobot, example, histogram_chart, measure_defs, print_eval, print_trial, settled,
 };
-use crate::tuning::knobs::{self, KnobSpace};
-use crate::tuning::measure::{self, Evaluation, MetricDef};
 use crate::tuning::robot::Robot;
-use crate::tuning::startup::flowing;
+use configbot_tuning::knobs::{self, KnobSpace};
+use configbot_tuning::measure::{self, Evaluation, MetricDef};
+use configbot_tuning::startup::flowing;
 
 #[derive(Debug, Args)]
 pub struct BenchArgs {

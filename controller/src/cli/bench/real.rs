@@ -26,10 +26,10 @@ use serde_json::Value;
 use super::owner::Current;
 use super::{BenchArgs, FLOW_TIMEOUT, MethodResult, result, start, tuned, wait_until_up};
 use crate::cli::demo::{example, measure_defs};
-use crate::tuning::knobs::KnobSpace;
-use crate::tuning::measure::{self, MetricDef};
 use crate::tuning::robot::Robot;
-use crate::tuning::settle;
+use configbot_tuning::knobs::KnobSpace;
+use configbot_tuning::measure::{self, MetricDef};
+use configbot_tuning::settle;
 
 /// The real stacks, by the name `--stacks` takes (`real` means all of them).
 pub const STACKS: [&str; 3] = ["real-perception", "real-nodelets", "real-two-paths"];
@@ -404,7 +404,7 @@ pub fn summary(defs_of: &dyn Fn(&str) -> Vec<MetricDef>, rows: &[MethodResult]) 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::tuning::knobs;
+    use configbot_tuning::knobs;
 
     fn row(stack: &str, method: &str, sat: f64, det: f64) -> MethodResult {
         MethodResult {

@@ -19,7 +19,7 @@ use serde::Serialize;
 
 pub use self::live::run;
 use crate::report::svg::{Chart, Mark, Rule, Series, colors};
-use crate::tuning::measure::{self, MetricDef};
+use configbot_tuning::measure::{self, MetricDef};
 
 /// A change of one spec's status, as first seen.
 #[derive(Debug, Clone, PartialEq, Serialize)]

@@ -20,8 +20,8 @@ use crate::cli::bench::{self, BenchArgs, Plan, example_for, follow, outcome, sta
 use crate::cli::demo::{PrivateRobot, measure_defs};
 use crate::robot::EmbeddedRobot;
 use crate::store::Store;
-use crate::tuning::measure::{self, MetricDef};
 use crate::tuning::robot::Robot;
+use configbot_tuning::measure::{self, MetricDef};
 
 /// Status and event poll interval of [`watch`].
 pub const WATCH: Duration = Duration::from_millis(100);

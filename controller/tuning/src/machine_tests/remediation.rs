@@ -4,7 +4,7 @@
 use configbot_manifests::performance_spec::RemediationAction;
 
 use super::*;
-use crate::tuning::outcome;
+use crate::outcome;
 
 #[test]
 fn a_spec_change_while_remediating_resumes_the_paused_apps_first() {

@@ -3,7 +3,8 @@
 //! exports them and `configbot apply -f` imports them on another robot of the
 //! same model. Context = robot model + sorted running apps and nodes of the
 //! stack + user labels (annotation `configbot.dev/context-labels: "k=v,k=v"`
-//! on the PerformanceSpec or the RobotStack). Pure except [`lookup`] and [`save`].
+//! on the PerformanceSpec or the RobotStack). Pure: the controller's
+//! `tuning::profiles` looks entries up in the store and saves them.
 
 use std::collections::BTreeMap;
 
@@ -16,7 +17,6 @@ use configbot_optimizer::Observation;
 
 use super::knobs::KnobSpace;
 use super::measure::MetricDef;
-use crate::store::{Store, StoreError};
 
 /// Annotation carrying user context labels.
 pub const CONTEXT_LABELS: &str = "configbot.dev/context-labels";
@@ -159,24 +159,6 @@ pub fn find(
             };
             k(a).partial_cmp(&k(b)).unwrap_or(std::cmp::Ordering::Equal)
         })
-}
-
-/// Look the context up in the store.
-pub fn lookup(
-    store: &Store,
-    namespace: &str,
-    spec_name: &str,
-    ctx: &ProfileContext,
-) -> Result<Option<ConfigProfile>, StoreError> {
-    let (all, _) = store.list(Kind::ConfigProfile, Some(namespace))?;
-    Ok(find(&all, spec_name, ctx))
-}
-
-/// Store (create or replace) an entry.
-pub fn save(store: &Store, p: &ConfigProfile) -> Result<(), StoreError> {
-    let v = serde_json::to_value(p).map_err(|e| StoreError::Corrupt(e.to_string()))?;
-    store.put(Kind::ConfigProfile, v, false)?;
-    Ok(())
 }
 
 /// Trials of a profile as optimizer observations in the current knob space

@@ -1,12 +1,38 @@
 //! Monitors (paper §V-B), pure parts: the constraint monitor (violations
 //! sustained for `spec.monitoring.violationWindowSeconds` trigger relearning)
-//! and the classification of robot events into context re-checks (a process
-//! exec or a graph change may mean a new app). Every trigger has a cause that
-//! becomes a condition and an event.
+//! and the classification of robot events ([`RobotEvent`]) into context
+//! re-checks (a process exec or a graph change may mean a new app). Every
+//! trigger has a cause that becomes a condition and an event.
 
+use configbot_api::graph::GraphEvent;
 use serde::{Deserialize, Serialize};
 
-use super::robot::RobotEvent;
+/// What the tuning loop needs to know of the runtime's `RuntimeEvent`s. A
+/// robot (an implementation of the controller's `tuning::robot::Robot`) maps
+/// each `RuntimeEvent` onto one of these (others → `Other`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "type", rename_all = "camelCase")]
+pub enum RobotEvent {
+    /// A process exec seen by the process monitor.
+    #[serde(rename_all = "camelCase")]
+    ProcessExec {
+        pid: u32,
+        comm: Option<String>,
+        at_unix_ms: u64,
+    },
+    #[serde(rename_all = "camelCase")]
+    ProcessExit { pid: u32 },
+    /// The ROS graph changed (nodes or edges came or went).
+    #[serde(rename_all = "camelCase")]
+    GraphChanged { events: Vec<GraphEvent> },
+    #[serde(rename_all = "camelCase")]
+    AppStopped { app: String },
+    #[serde(rename_all = "camelCase")]
+    AppStarted { app: String },
+    /// Any other runtime event, by its type name.
+    #[serde(rename_all = "camelCase")]
+    Other { name: String },
+}
 
 /// Why a run (re)starts.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

@@ -110,8 +110,7 @@ fn a_silent_non_core_topic_delays_the_run_by_the_grace_only() {
     // Every node is there; the default config starves the detector for good.
     let (_, events, _, t) = run_start_up(&env, |_| (graph(), [40.0], 0.0));
     assert!(
-        (crate::tuning::startup::NON_CORE_GRACE_MS
-            ..=crate::tuning::startup::NON_CORE_GRACE_MS + 2_000)
+        (crate::startup::NON_CORE_GRACE_MS..=crate::startup::NON_CORE_GRACE_MS + 2_000)
             .contains(&t),
         "{t}"
     );

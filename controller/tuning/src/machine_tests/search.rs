@@ -3,7 +3,7 @@
 //! near-best rule, and when safe exploration applies.
 
 use super::*;
-use crate::tuning::{knobs, search};
+use crate::{knobs, search};
 
 #[test]
 fn early_stop_is_a_censored_observation() {
@@ -200,7 +200,7 @@ fn a_backed_off_config_that_holds_is_monitored_learned_and_shown() {
             config: config.clone()
         }
     );
-    let status = crate::tuning::status::status(&Default::default(), &run, &env.defs(), 5, 1, "now");
+    let status = crate::status::status(&Default::default(), &run, &env.defs(), 5, 1, "now");
     assert_eq!(status.best_trial, Some(1));
     assert_eq!(status.best_trial_backoff, Some(0.8));
     assert_eq!(status.rejected_trials, vec![1]);
@@ -619,7 +619,7 @@ fn with_every_knob_pinned_the_pinned_config_is_measured_before_a_verdict() {
 }
 
 /// A run whose trials had windows both on and off target verifies its pick
-/// over [`crate::tuning::machine::NOISY_VERIFY_TRIALS`] trials' length, not two.
+/// over [`crate::machine::NOISY_VERIFY_TRIALS`] trials' length, not two.
 #[test]
 fn a_run_that_saw_the_boundary_blur_verifies_longer() {
     let (st, sp) = (stack(), spec(1.0, 5));
@@ -633,10 +633,7 @@ fn a_run_that_saw_the_boundary_blur_verifies_longer() {
         Effect::Measure(r) => r.duration_ms,
         e => panic!("{e:?}"),
     };
-    assert!(
-        !crate::tuning::machine::boundary_blurred(&run),
-        "every window held"
-    );
+    assert!(!crate::machine::boundary_blurred(&run), "every window held");
     assert_eq!(verify_ms(&run), 10_000, "two 5 s trials");
     // The same config missed /cmd_vel in 3 of its 10 windows.
     let mut cmd = OK.to_vec();
@@ -651,6 +648,6 @@ fn a_run_that_saw_the_boundary_blur_verifies_longer() {
         eval: measure::evaluate(&env.defs(), &r, Default::default()),
         censored: false,
     });
-    assert!(crate::tuning::machine::boundary_blurred(&run));
+    assert!(crate::machine::boundary_blurred(&run));
     assert_eq!(verify_ms(&run), 30_000, "six 5 s trials");
 }
