@@ -160,16 +160,6 @@ fn reasons(out: &[Output]) -> Vec<&'static str> {
         .collect()
 }
 
-/// The events' messages, in order.
-fn messages(out: &[Output]) -> Vec<String> {
-    out.iter()
-        .filter_map(|o| match o {
-            Output::Event { message, .. } => Some(message.clone()),
-            Output::SaveProfile(_) => None,
-        })
-        .collect()
-}
-
 fn observe(skip: bool) -> State {
     State::Observe {
         trigger: Trigger::SpecChanged,
