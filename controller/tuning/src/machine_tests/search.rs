@@ -118,6 +118,40 @@ fn verify(run: Run, env: &Env<'_>, cmd: &[f64]) -> (Run, Vec<Output>) {
     step(run, report(cmd, 9.0), env)
 }
 
+/// A verification whose every window met 35 Hz but whose spread predicts
+/// misses (mean 38.25, sd 2.3: bound 32.9) fails like one that missed, and
+/// says why; the same windows with half the spread hold.
+#[test]
+fn a_verification_whose_windows_held_but_spread_predicts_misses_fails() {
+    let (st, sp) = (stack(), spec(1.0, 5));
+    let env = env(&st, &sp);
+    let mut run = with_two_trials(&env);
+    let mut out = Vec::new();
+    run.state = finish(&mut run, &env, &env.defs(), &mut out);
+    let wide = [40.0, 36.0, 40.0, 40.0, 35.5, 40.0, 36.0, 40.0, 40.0, 35.0];
+    let (failed, out) = verify(run.clone(), &env, &wide);
+    assert_eq!(reasons(&out), vec!["VerificationFailed", "BackingOff"]);
+    let text = match &out[0] {
+        Output::Event { message, .. } => message.clone(),
+        o => panic!("{o:?}"),
+    };
+    assert!(
+        text.contains("held in 100.0 % of the windows, but their spread predicts misses: cmd of 32.9 by mean − 2.33·sd"),
+        "{text}"
+    );
+    assert!(matches!(
+        failed.state,
+        State::VerifyApply {
+            candidate: Candidate::Backoff { index: 1, .. },
+            ..
+        }
+    ));
+    let narrow: Vec<f64> = wide.iter().map(|v| 38.0 + (v - 38.0) / 2.0).collect();
+    let (held, out) = verify(run, &env, &narrow);
+    assert_eq!(reasons(&out), vec!["Satisfied", "<save>"]);
+    assert_eq!(name(&held.state), "Monitor");
+}
+
 #[test]
 fn a_best_trial_failing_verification_is_backed_off_before_the_next_best() {
     let (st, sp) = (stack(), spec(1.0, 5));
