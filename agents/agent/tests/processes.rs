@@ -150,7 +150,7 @@ async fn crashed_run_nodes_restart_per_policy_with_backoff() {
     let mut delays = Vec::new();
     while delays.len() < 4 {
         if let AgentEvent::NodeRestarting { delay_ms, .. } =
-            wait_event(&mut rx, T, |e| matches!(e, AgentEvent::NodeRestarting { node, .. } if *node == common::node("/fails"))).await
+            wait_event(&mut rx, "a restart of /fails", T, |e| matches!(e, AgentEvent::NodeRestarting { node, .. } if *node == common::node("/fails"))).await
         {
             delays.push(delay_ms);
         }
@@ -257,6 +257,7 @@ async fn a_frozen_app_uses_no_cpu_until_thawed_and_still_stops_gracefully() {
     agent.freeze_app("hogs").unwrap();
     wait_event(
         &mut events,
+        "the hogs frozen",
         T,
         |e| matches!(e, AgentEvent::AppFrozen { app } if app == "hogs"),
     )
@@ -347,7 +348,10 @@ async fn a_process_matching_two_match_nodes_is_claimed_once() {
             ppid: Some(1),
             comm: Some("sleep".into()),
         });
-        wait_event(&mut rx, T, |e| matches!(e, AgentEvent::ProcessExec { .. })).await;
+        wait_event(&mut rx, "the exec event", T, |e| {
+            matches!(e, AgentEvent::ProcessExec { .. })
+        })
+        .await;
         tokio::time::sleep(Duration::from_millis(150)).await;
     }
     assert_eq!(agent.backend().pids(&node("/one")).unwrap(), [pid]);

@@ -11,10 +11,10 @@ use configbot_agent::{AgentEvent, RuntimeEvent, StackSpec};
 use configbot_manifests::{AdaptorRate, ResourceConfig};
 use configbot_procmon::{MonitorKind, Preference};
 
-use common::node;
 use common::rt::{
     RECORDING_MAX_MB, RT_POLL, RtEnv, graph_pid, robot_stack, ros_available, stack_yaml,
 };
+use common::{node, try_wait_event, wait_event};
 use configbot_test_support::wait_until_async;
 
 const T: Duration = Duration::from_secs(40);
@@ -75,11 +75,7 @@ async fn ros_nodes_are_adopted_limited_adapted_and_measured() {
     // The event stream saw the graph change and the adoption by ROS name
     // (the agent's events reach it through a forwarding task: wait for them).
     let (mut graph_listener, mut adopted) = (false, false);
-    let end = Instant::now() + T;
-    while !(graph_listener && adopted) {
-        let Ok(Ok(ev)) = tokio::time::timeout_at(end.into(), events.recv()).await else {
-            break;
-        };
+    try_wait_event(&mut events, T, |ev| {
         match ev {
             RuntimeEvent::GraphChanged { events } => {
                 graph_listener |= events.iter().any(|g| {
@@ -92,7 +88,9 @@ async fn ros_nodes_are_adopted_limited_adapted_and_measured() {
             }
             _ => {}
         }
-    }
+        graph_listener && adopted
+    })
+    .await;
     assert!(
         graph_listener && adopted,
         "graph {graph_listener} adopted {adopted}"
@@ -461,16 +459,13 @@ async fn http_api_and_client_round_trip_over_the_unix_socket() {
     );
 
     client.stop_app("cam").await.unwrap();
-    let end = Instant::now() + T;
-    loop {
-        let ev = tokio::time::timeout(end - Instant::now(), events.recv())
-            .await
-            .expect("no appStopped event through the client")
-            .unwrap();
-        if matches!(&ev, RuntimeEvent::Agent(AgentEvent::AppStopped { app }) if app == "cam") {
-            break;
-        }
-    }
+    wait_event(
+        &mut events,
+        "an appStopped event through the client",
+        T,
+        |ev| matches!(ev, RuntimeEvent::Agent(AgentEvent::AppStopped { app }) if app == "cam"),
+    )
+    .await;
     assert!(
         client
             .stop_app("nope")

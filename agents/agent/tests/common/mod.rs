@@ -10,7 +10,7 @@ use std::io::{Read, Write};
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
-use configbot_agent::{Agent, AgentEvent, AgentSettings, ConfigUpdate, StackSpec};
+use configbot_agent::{Agent, AgentSettings, ConfigUpdate, StackSpec};
 use configbot_cgroups::{CgroupBackend, CpuLimit, Layout, NodeName, SubtreeRoot, V1Backend};
 use configbot_test_support::cgroup::remove_tree;
 use configbot_test_support::wait_until_async;
@@ -120,12 +120,14 @@ pub fn node(name: &str) -> NodeName {
     NodeName::new(name).unwrap()
 }
 
-/// Waits for an event that `pred` accepts.
-pub async fn wait_event(
-    rx: &mut tokio::sync::broadcast::Receiver<AgentEvent>,
+/// Waits up to `timeout` for an event that `pred` accepts (events missed
+/// by lagging behind are skipped); `None` on timeout. Panics when the
+/// channel closes.
+pub async fn try_wait_event<E: Clone>(
+    rx: &mut tokio::sync::broadcast::Receiver<E>,
     timeout: Duration,
-    mut pred: impl FnMut(&AgentEvent) -> bool,
-) -> AgentEvent {
+    mut pred: impl FnMut(&E) -> bool,
+) -> Option<E> {
     tokio::time::timeout(timeout, async {
         loop {
             match rx.recv().await {
@@ -136,7 +138,19 @@ pub async fn wait_event(
         }
     })
     .await
-    .expect("timed out waiting for event")
+    .ok()
+}
+
+/// [`try_wait_event`] that panics on timeout naming `what`.
+pub async fn wait_event<E: Clone>(
+    rx: &mut tokio::sync::broadcast::Receiver<E>,
+    what: &str,
+    timeout: Duration,
+    pred: impl FnMut(&E) -> bool,
+) -> E {
+    try_wait_event(rx, timeout, pred)
+        .await
+        .unwrap_or_else(|| panic!("timed out after {timeout:?} waiting for {what}"))
 }
 
 /// Waits until node `n` of `agent` has a process in its cgroup.
