@@ -9,24 +9,14 @@
 
 mod common;
 
-use std::process::{Child, Command, Stdio};
+use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
-use configbot_test_support::{try_wait_until, wait_until};
+use configbot_test_support::{ChildGuard, try_wait_until, wait_until};
 
 use common::{
     NodeRun, Robot, TestNode, app, configbot_bin, hog_stack_with, now_ms, phase, rfc3339_secs,
 };
-
-/// The hog the test starts; killed on drop even when the test fails.
-struct Spawned(Child);
-
-impl Drop for Spawned {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
 
 fn outcome(o: &serde_json::Value) -> bool {
     matches!(phase(o), "Monitoring" | "Unsat")
@@ -67,7 +57,7 @@ fn new_app_is_detected_and_known_context_reapplies_fast() {
     // Start /hog6 as a user would, outside ConfigBot.
     let trials_in_a = robot.events_with(name, "Trial").len();
     let before_exec = now_ms();
-    let hog = Spawned(
+    let hog = ChildGuard(
         Command::new(configbot_bin())
             .args([
                 "simnode",
