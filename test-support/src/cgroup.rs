@@ -1,7 +1,8 @@
 //! Private cgroups of a test on the v1 CPU hierarchies (`cpu`, `cpuacct`;
 //! no other controller): names unique to the test process, a [`CpuCgroup`]
 //! that processes (the test itself too) can join and that is emptied and
-//! removed on drop, [`remove_tree`] for a subtree another program made, and
+//! removed on drop, [`remove_tree`] (and [`remove_subtree`]) for a subtree
+//! another program made, and
 //! [`leftovers`] for the check that nothing of a finished test remains.
 //!
 //! The hierarchies' mount points are the caller's (`configbot_cgroups::
@@ -119,6 +120,17 @@ pub fn remove_tree(dirs: &[PathBuf], timeout: Duration) -> Result<(), TimedOut> 
     })
 }
 
+/// [`remove_tree`] of the cgroup `name` directly below each of `mounts`
+/// (a subtree root in each CPU hierarchy).
+pub fn remove_subtree(
+    mounts: impl IntoIterator<Item = PathBuf>,
+    name: &str,
+    timeout: Duration,
+) -> Result<(), TimedOut> {
+    let dirs: Vec<PathBuf> = mounts.into_iter().map(|m| m.join(name)).collect();
+    remove_tree(&dirs, timeout)
+}
+
 /// `dir` and the cgroups below it, children before their parent; empty
 /// when `dir` does not exist.
 fn depth_first(dir: &Path) -> Vec<PathBuf> {
@@ -207,7 +219,7 @@ mod tests {
     }
 
     #[test]
-    fn remove_tree_removes_nested_dirs_deepest_first_and_a_missing_one_is_gone() {
+    fn remove_tree_and_remove_subtree_remove_nested_dirs_deepest_first() {
         // Empty plain directories stand in for cgroups (a cgroup's control
         // files do not keep rmdir from removing it; plain files would).
         let root = tempfile_dir("tree");
@@ -219,6 +231,16 @@ mod tests {
         )
         .unwrap();
         assert!(!root.exists());
+        // The same subtree below two mounts.
+        let mounts = [tempfile_dir("mount"), tempfile_dir("mount")];
+        for m in &mounts {
+            std::fs::create_dir_all(m.join("sub/node-a")).unwrap();
+        }
+        remove_subtree(mounts.clone(), "sub", Duration::from_secs(1)).unwrap();
+        for m in &mounts {
+            assert!(!m.join("sub").exists());
+            std::fs::remove_dir(m).unwrap();
+        }
     }
 
     #[test]

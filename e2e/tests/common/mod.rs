@@ -21,7 +21,7 @@ use std::sync::{Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 
 use configbot_cgroups::{CgroupBackend, Layout, SubtreeRoot, V1Backend};
-use configbot_test_support::cgroup::remove_tree;
+use configbot_test_support::cgroup::{remove_subtree, remove_tree};
 use configbot_test_support::{CpuCgroup, free_port, try_wait_until};
 use serde_json::Value;
 
@@ -521,12 +521,8 @@ pub fn kill_and_remove(child: &mut Child, root: &str) {
 /// that fails within 10 s.
 pub fn nuke(root: &str) {
     let Ok(l) = Layout::detect() else { return };
-    let dirs: Vec<PathBuf> = [l.v1_cpu, l.v1_cpuacct]
-        .into_iter()
-        .flatten()
-        .map(|m| m.join(root))
-        .collect();
-    if let Err(e) = remove_tree(&dirs, Duration::from_secs(10)) {
+    let mounts = [l.v1_cpu, l.v1_cpuacct].into_iter().flatten();
+    if let Err(e) = remove_subtree(mounts, root, Duration::from_secs(10)) {
         eprintln!("e2e: {e}");
     }
 }

@@ -12,7 +12,7 @@ use std::time::{Duration, Instant};
 
 use configbot_agent::{Agent, AgentSettings, ConfigUpdate, StackSpec};
 use configbot_cgroups::{CgroupBackend, CpuLimit, Layout, NodeName, SubtreeRoot, V1Backend};
-use configbot_test_support::cgroup::remove_tree;
+use configbot_test_support::cgroup::remove_subtree;
 use configbot_test_support::wait_until_async;
 
 /// How often the tests' condition waits look.
@@ -37,12 +37,8 @@ pub fn v1_backend(root: &str) -> V1Backend {
 /// test already fails.
 pub fn nuke(root: &str) {
     let l = Layout::detect().unwrap();
-    let dirs: Vec<PathBuf> = [l.v1_cpu, l.v1_cpuacct]
-        .into_iter()
-        .flatten()
-        .map(|m| m.join(root))
-        .collect();
-    if let Err(e) = remove_tree(&dirs, Duration::from_secs(10)) {
+    let mounts = [l.v1_cpu, l.v1_cpuacct].into_iter().flatten();
+    if let Err(e) = remove_subtree(mounts, root, Duration::from_secs(10)) {
         assert!(std::thread::panicking(), "{e}");
         eprintln!("{e}");
     }
