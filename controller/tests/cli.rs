@@ -1,70 +1,19 @@
 //! The `configbot` CLI against a real server: `get -o` formats, `delete` by
 //! file, selector and dry run, shell completion, and inputs without objects.
 
-use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
-use std::time::{Duration, Instant};
+mod common;
 
+use std::path::Path;
+use std::process::Command;
+use std::time::Duration;
+
+use common::{BIN, cli, example, serve};
 use serde_json::Value;
-
-const BIN: &str = env!("CARGO_BIN_EXE_configbot");
-
-struct Server(Child);
-
-impl Drop for Server {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
-
-fn serve(dir: &Path) -> Server {
-    let child = Command::new(BIN)
-        .args(["serve", "--db"])
-        .arg(dir.join("db"))
-        .arg("--socket")
-        .arg(dir.join("api.sock"))
-        .stderr(Stdio::null())
-        .spawn()
-        .unwrap();
-    let deadline = Instant::now() + Duration::from_secs(20);
-    while std::os::unix::net::UnixStream::connect(dir.join("api.sock")).is_err() {
-        assert!(Instant::now() < deadline, "server did not come up");
-        std::thread::sleep(Duration::from_millis(20));
-    }
-    Server(child)
-}
-
-/// Runs `configbot --server unix://DIR/api.sock ARGS`: (success, stdout, stderr).
-fn cli(dir: &Path, args: &[&str]) -> (bool, String, String) {
-    let out = Command::new(BIN)
-        .arg("--server")
-        .arg(format!("unix://{}", dir.join("api.sock").display()))
-        .args(args)
-        .output()
-        .unwrap();
-    (
-        out.status.success(),
-        String::from_utf8_lossy(&out.stdout).into_owned(),
-        String::from_utf8_lossy(&out.stderr).into_owned(),
-    )
-}
 
 fn ok(dir: &Path, args: &[&str]) -> String {
     let (ok, out, err) = cli(dir, args);
     assert!(ok, "configbot {args:?} failed:\n{out}{err}");
     out
-}
-
-fn example(name: &str) -> String {
-    examples()
-        .join(format!("{name}.yaml"))
-        .display()
-        .to_string()
-}
-
-fn examples() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../manifests/examples")
 }
 
 #[test]

@@ -2,124 +2,14 @@
 //! and flags of issue 15 (server dry run, JSON patch, unchanged re-apply),
 //! each checked by what kubectl prints and what the server then holds.
 
-use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
-use std::time::{Duration, Instant};
+mod common;
 
-const BIN: &str = env!("CARGO_BIN_EXE_configbot");
-const TOKEN: &str = "t0ken-for-kubectl-tests";
+use std::path::Path;
+use std::process::Stdio;
+use std::time::Duration;
 
-/// A private server with an HTTPS listener, and kubectl aimed at it.
-struct Kube {
-    dir: tempfile::TempDir,
-    port: u16,
-    kubectl: PathBuf,
-    server: Child,
-}
-
-impl Drop for Kube {
-    fn drop(&mut self) {
-        let _ = self.server.kill();
-        let _ = self.server.wait();
-    }
-}
-
-impl Kube {
-    fn start() -> Kube {
-        let kubectl = which("kubectl").expect("kubectl is not installed; `./x deps` installs it");
-        let dir = tempfile::tempdir().unwrap();
-        std::fs::write(dir.path().join("token"), format!("{TOKEN}\n")).unwrap();
-        let port = std::net::TcpListener::bind("127.0.0.1:0")
-            .unwrap()
-            .local_addr()
-            .unwrap()
-            .port();
-        let server = Command::new(BIN)
-            .args(["serve", "--db"])
-            .arg(dir.path().join("db"))
-            .arg("--socket")
-            .arg(dir.path().join("api.sock"))
-            .args(["--listen", &format!("127.0.0.1:{port}"), "--token-file"])
-            .arg(dir.path().join("token"))
-            .stderr(Stdio::null())
-            .spawn()
-            .unwrap();
-        let deadline = Instant::now() + Duration::from_secs(20);
-        while std::net::TcpStream::connect(("127.0.0.1", port)).is_err() {
-            assert!(Instant::now() < deadline, "https listener did not come up");
-            std::thread::sleep(Duration::from_millis(20));
-        }
-        Kube {
-            dir,
-            port,
-            kubectl,
-            server,
-        }
-    }
-
-    /// kubectl's flags for this server: address, token and CA.
-    fn flags(&self) -> Vec<String> {
-        vec![
-            "--server".into(),
-            format!("https://127.0.0.1:{}", self.port),
-            "--token".into(),
-            TOKEN.into(),
-            "--certificate-authority".into(),
-            self.dir.path().join("tls.crt").display().to_string(),
-        ]
-    }
-
-    /// Runs kubectl; (success, stdout, stderr).
-    fn run(&self, args: &[&str]) -> (bool, String, String) {
-        let out = Command::new(&self.kubectl)
-            .env("KUBECONFIG", self.dir.path().join("kubeconfig"))
-            .env("HOME", self.dir.path())
-            .args(self.flags())
-            .args(args)
-            .output()
-            .unwrap();
-        (
-            out.status.success(),
-            String::from_utf8_lossy(&out.stdout).into_owned(),
-            String::from_utf8_lossy(&out.stderr).into_owned(),
-        )
-    }
-
-    /// Runs kubectl and requires success; its standard output.
-    fn ok(&self, args: &[&str]) -> String {
-        let (ok, out, err) = self.run(args);
-        assert!(ok, "kubectl {args:?} failed:\n{out}{err}");
-        out
-    }
-
-    /// An object as JSON, or None when the server has no such object.
-    fn object(&self, kind: &str, name: &str) -> Option<serde_json::Value> {
-        let (ok, out, err) = self.run(&["get", kind, name, "-o", "json"]);
-        if !ok {
-            assert!(
-                err.contains("NotFound") || err.contains("not found"),
-                "{err}"
-            );
-            return None;
-        }
-        Some(serde_json::from_str(&out).unwrap())
-    }
-}
-
-fn example(name: &str) -> String {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join(format!("../manifests/examples/{name}.yaml"))
-        .display()
-        .to_string()
-}
-
-fn which(name: &str) -> Option<PathBuf> {
-    std::env::var_os("PATH")
-        .into_iter()
-        .flat_map(|p| std::env::split_paths(&p).collect::<Vec<_>>())
-        .map(|d| d.join(name))
-        .find(|p| p.is_file())
-}
+use common::{Kube, Lines, example};
+use configbot_test_support::{ChildGuard, wait_until};
 
 /// `--dry-run=server` on create, update (apply, label, patch, replace,
 /// server-side apply) and delete reports what would happen and changes nothing.
@@ -268,21 +158,9 @@ fn json_patch_with_test_ops() {
 
 /// Runs the `configbot` CLI against the server's Unix socket; its output.
 fn configbot(k: &Kube, args: &[&str]) -> String {
-    let out = Command::new(BIN)
-        .arg("--server")
-        .arg(format!(
-            "unix://{}",
-            k.dir.path().join("api.sock").display()
-        ))
-        .args(args)
-        .output()
-        .unwrap();
-    let text = format!(
-        "{}{}",
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
-    assert!(out.status.success(), "configbot {args:?}:\n{text}");
+    let (ok, out, err) = common::cli(k.dir.path(), args);
+    let text = out + &err;
+    assert!(ok, "configbot {args:?}:\n{text}");
     text
 }
 
@@ -455,10 +333,8 @@ fn diff_shows_changes_and_exits_1() {
     let text = std::fs::read_to_string(&file).unwrap();
     assert!(text.contains("model: spot"), "the example changed: {text}");
     std::fs::write(&changed, text.replace("model: spot", "model: jackal")).unwrap();
-    let out = Command::new(&k.kubectl)
-        .env("KUBECONFIG", k.dir.path().join("kubeconfig"))
-        .env("HOME", k.dir.path())
-        .args(k.flags())
+    let out = k
+        .command()
         .args(["diff", "-f", changed.to_str().unwrap()])
         .output()
         .unwrap();
@@ -498,12 +374,10 @@ fn edit_with_a_scripted_editor() {
         p.display().to_string()
     };
     let edit = |editor: &str| {
-        let out = Command::new(&k.kubectl)
-            .env("KUBECONFIG", k.dir.path().join("kubeconfig"))
-            .env("HOME", k.dir.path())
+        let out = k
+            .command()
             .env("KUBE_EDITOR", editor)
             .env("TMPDIR", k.dir.path())
-            .args(k.flags())
             .args(["edit", "rs", "basic-nav"])
             .output()
             .unwrap();
@@ -650,56 +524,25 @@ fn label_burst(sock: &Path, name: &str, n: usize) {
 fn get_watch_sees_updates_and_expiry() {
     let k = Kube::start();
     k.ok(&["apply", "-f", &example("basic-nav")]);
-    let mut watch = Command::new(&k.kubectl)
-        .env("KUBECONFIG", k.dir.path().join("kubeconfig"))
-        .env("HOME", k.dir.path())
-        .args(k.flags())
-        .args(["get", "rs", "-w", "--output-watch-events"])
-        .stdout(Stdio::piped())
-        .stderr(Stdio::null())
-        .spawn()
-        .unwrap();
-    let stdout = watch.stdout.take().unwrap();
-    let (tx, rx) = std::sync::mpsc::channel();
-    std::thread::spawn(move || {
-        use std::io::BufRead;
-        for line in std::io::BufReader::new(stdout)
-            .lines()
-            .map_while(Result::ok)
-        {
-            let _ = tx.send(line);
-        }
-    });
-    struct Kill(Child);
-    impl Drop for Kill {
-        fn drop(&mut self) {
-            let _ = self.0.kill();
-            let _ = self.0.wait();
-        }
-    }
-    let mut watch = Kill(watch);
-    let mut seen = Vec::new();
-    let mut wait_line = |what: &str, timeout: Duration, f: &dyn Fn(&str) -> bool| {
-        let deadline = Instant::now() + timeout;
-        loop {
-            let left = deadline.saturating_duration_since(Instant::now());
-            match rx.recv_timeout(left) {
-                Ok(l) if f(&l) => return l,
-                Ok(l) => seen.push(l),
-                Err(_) => panic!("no {what} within {timeout:?}; seen:\n{}", seen.join("\n")),
-            }
-        }
-    };
-    wait_line("ADDED line", Duration::from_secs(20), &|l| {
+    let mut watch = ChildGuard(
+        k.command()
+            .args(["get", "rs", "-w", "--output-watch-events"])
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap(),
+    );
+    let mut lines = Lines::of(&mut watch.0);
+    lines.wait_for("an ADDED line", Duration::from_secs(20), |l| {
         l.starts_with("ADDED") && l.contains("basic-nav")
     });
     k.ok(&["label", "rs", "basic-nav", "seen=yes"]);
-    wait_line("MODIFIED line", Duration::from_secs(20), &|l| {
+    lines.wait_for("a MODIFIED line", Duration::from_secs(20), |l| {
         l.starts_with("MODIFIED") && l.contains("basic-nav")
     });
 
     // The slow consumer: kubectl stopped, 3500 changes, kubectl goes on.
-    let pid = libc::pid_t::try_from(watch.0.id()).unwrap();
+    let pid = libc::pid_t::try_from(watch.id()).unwrap();
     #[allow(unsafe_code)]
     // SAFETY: kill(2) of the kubectl child this test started.
     unsafe {
@@ -711,20 +554,18 @@ fn get_watch_sees_updates_and_expiry() {
     unsafe {
         libc::kill(pid, libc::SIGCONT);
     }
-    let expired = wait_line("Expired line", Duration::from_secs(60), &|l| {
+    let expired = lines.wait_for("an Expired line", Duration::from_secs(60), |l| {
         l.contains("Expired")
     });
     assert!(
         expired.starts_with("ERROR") && expired.contains("list again"),
         "{expired}"
     );
-    let deadline = Instant::now() + Duration::from_secs(20);
-    let status = loop {
-        if let Some(st) = watch.0.try_wait().unwrap() {
-            break st;
-        }
-        assert!(Instant::now() < deadline, "kubectl went on after 410");
-        std::thread::sleep(Duration::from_millis(50));
-    };
+    let status = wait_until(
+        "kubectl to end after the 410",
+        Duration::from_secs(20),
+        Duration::from_millis(50),
+        || watch.0.try_wait().unwrap(),
+    );
     assert!(status.success(), "{status}");
 }

@@ -38,11 +38,7 @@ impl Drop for Fixture {
 impl Fixture {
     async fn start() -> Fixture {
         let dir = tempfile::tempdir().unwrap();
-        let port = std::net::TcpListener::bind("127.0.0.1:0")
-            .unwrap()
-            .local_addr()
-            .unwrap()
-            .port();
+        let port = configbot_test_support::free_port();
         let cfg = ServerConfig {
             db: dir.path().join("configbot.db"),
             socket: dir.path().join("configbot.sock"),

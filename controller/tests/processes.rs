@@ -1,57 +1,19 @@
 //! The `configbot` binary as a real process: the Unix socket refuses other
 //! users, and `kill -9` of the server loses nothing that was applied.
 
-use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
-use std::time::{Duration, Instant};
+mod common;
 
-const BIN: &str = env!("CARGO_BIN_EXE_configbot");
+use std::path::Path;
+use std::process::{Command, Stdio};
+use std::time::Duration;
 
-struct Server(Child);
+use common::{BIN, Kube, Lines, examples, serve};
+use configbot_test_support::{ChildGuard, try_wait_until};
 
-impl Drop for Server {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
-
-fn serve(dir: &Path) -> Server {
-    let child = Command::new(BIN)
-        .args(["serve", "--db"])
-        .arg(dir.join("db"))
-        .arg("--socket")
-        .arg(dir.join("api.sock"))
-        .stderr(Stdio::null())
-        .spawn()
-        .unwrap();
-    let deadline = Instant::now() + Duration::from_secs(20);
-    while std::os::unix::net::UnixStream::connect(dir.join("api.sock")).is_err() {
-        assert!(Instant::now() < deadline, "server did not come up");
-        std::thread::sleep(Duration::from_millis(20));
-    }
-    Server(child)
-}
-
+/// Runs the CLI against the server in `dir`: (success, stdout and stderr).
 fn cli(dir: &Path, args: &[&str]) -> (bool, String) {
-    let out = Command::new(BIN)
-        .arg("--server")
-        .arg(format!("unix://{}", dir.join("api.sock").display()))
-        .args(args)
-        .output()
-        .unwrap();
-    (
-        out.status.success(),
-        format!(
-            "{}{}",
-            String::from_utf8_lossy(&out.stdout),
-            String::from_utf8_lossy(&out.stderr)
-        ),
-    )
-}
-
-fn examples() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../manifests/examples")
+    let (ok, out, err) = common::cli(dir, args);
+    (ok, out + &err)
 }
 
 /// `-f` arguments for the three valid example files (the folder also holds `invalid/`).
@@ -167,24 +129,16 @@ fn unix_socket_refuses_other_users() {
 fn watch_streams_changes() {
     let dir = tempfile::tempdir().unwrap();
     let _server = serve(dir.path());
-    let mut watch = Command::new(BIN)
-        .arg("--server")
-        .arg(format!("unix://{}", dir.path().join("api.sock").display()))
-        .args(["get", "rs", "-w"])
-        .stdout(Stdio::piped())
-        .spawn()
-        .unwrap();
-    let stdout = watch.stdout.take().unwrap();
-    let (tx, rx) = std::sync::mpsc::channel();
-    std::thread::spawn(move || {
-        use std::io::BufRead;
-        for line in std::io::BufReader::new(stdout)
-            .lines()
-            .map_while(Result::ok)
-        {
-            let _ = tx.send(line);
-        }
-    });
+    let mut watch = ChildGuard(
+        Command::new(BIN)
+            .arg("--server")
+            .arg(format!("unix://{}", dir.path().join("api.sock").display()))
+            .args(["get", "rs", "-w"])
+            .stdout(Stdio::piped())
+            .spawn()
+            .unwrap(),
+    );
+    let mut lines = Lines::of(&mut watch.0);
     let (ok, out) = cli(
         dir.path(),
         &[
@@ -194,77 +148,20 @@ fn watch_streams_changes() {
         ],
     );
     assert!(ok, "{out}");
-    let deadline = Instant::now() + Duration::from_secs(20);
-    let mut seen = Vec::new();
-    while !seen
-        .iter()
-        .any(|l: &String| l.contains("basic-nav") && l.contains("Accepted"))
-    {
-        let left = deadline.saturating_duration_since(Instant::now());
-        assert!(
-            !left.is_zero(),
-            "watch did not show the stack becoming Accepted: {seen:?}"
-        );
-        if let Ok(l) = rx.recv_timeout(left) {
-            seen.push(l);
-        }
-    }
-    let _ = watch.kill();
-    let _ = watch.wait();
+    lines.wait_for(
+        "the watch to show the stack becoming Accepted",
+        Duration::from_secs(20),
+        |l| l.contains("basic-nav") && l.contains("Accepted"),
+    );
 }
 
 /// The real `kubectl` against the HTTPS listener: apply, get, describe, delete.
 #[test]
 fn stock_kubectl_works() {
-    let Ok(kubectl) = which("kubectl") else {
-        panic!("kubectl is not installed; `./x deps` installs it");
-    };
-    let dir = tempfile::tempdir().unwrap();
-    std::fs::write(dir.path().join("token"), "t0ken-for-test\n").unwrap();
-    let port = std::net::TcpListener::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port();
-    let child = Command::new(BIN)
-        .args(["serve", "--db"])
-        .arg(dir.path().join("db"))
-        .arg("--socket")
-        .arg(dir.path().join("api.sock"))
-        .args(["--listen", &format!("127.0.0.1:{port}"), "--token-file"])
-        .arg(dir.path().join("token"))
-        .stderr(Stdio::null())
-        .spawn()
-        .unwrap();
-    let _server = Server(child);
-    let deadline = Instant::now() + Duration::from_secs(20);
-    while std::net::TcpStream::connect(("127.0.0.1", port)).is_err() {
-        assert!(Instant::now() < deadline, "https listener did not come up");
-        std::thread::sleep(Duration::from_millis(20));
-    }
+    let kube = Kube::start();
     let k = |args: &[&str]| {
-        let out = Command::new(&kubectl)
-            .env("KUBECONFIG", dir.path().join("kubeconfig"))
-            .env("HOME", dir.path())
-            .args([
-                "--server",
-                &format!("https://127.0.0.1:{port}"),
-                "--token",
-                "t0ken-for-test",
-                "--certificate-authority",
-            ])
-            .arg(dir.path().join("tls.crt"))
-            .args(args)
-            .output()
-            .unwrap();
-        (
-            out.status.success(),
-            format!(
-                "{}{}",
-                String::from_utf8_lossy(&out.stdout),
-                String::from_utf8_lossy(&out.stderr)
-            ),
-        )
+        let (ok, out, err) = kube.run(args);
+        (ok, out + &err)
     };
     let file = examples().join("basic-nav.yaml");
     let (ok, out) = k(&["apply", "-f", file.to_str().unwrap()]);
@@ -273,22 +170,22 @@ fn stock_kubectl_works() {
         out.contains("robotstack.configbot.dev/basic-nav created"),
         "{out}"
     );
-    let deadline = Instant::now() + Duration::from_secs(20);
-    loop {
-        let (ok, out) = k(&["get", "rs"]);
-        assert!(ok, "{out}");
-        if out.contains("basic-nav") && out.contains("Accepted") {
-            break;
-        }
-        assert!(
-            Instant::now() < deadline,
-            "stack never showed Accepted:\n{out}"
-        );
-        std::thread::sleep(Duration::from_millis(100));
-    }
+    let mut last = String::new();
+    let shown = try_wait_until(
+        "the stack to show Accepted",
+        Duration::from_secs(20),
+        Duration::from_millis(100),
+        || {
+            let (ok, out) = k(&["get", "rs"]);
+            assert!(ok, "{out}");
+            last = out;
+            last.contains("basic-nav") && last.contains("Accepted")
+        },
+    );
+    shown.unwrap_or_else(|e| panic!("{e}:\n{last}"));
     // Validation is on (kubectl reads /openapi/v3 and leaves it to the
     // server): an unknown field is refused and named.
-    let bad = dir.path().join("bad.yaml");
+    let bad = kube.dir.path().join("bad.yaml");
     std::fs::write(
         &bad,
         "apiVersion: configbot.dev/v1alpha1\nkind: RobotStack\nmetadata: {name: bad}\n\
@@ -306,11 +203,11 @@ fn stock_kubectl_works() {
     let (_, out) = k(&["get", "pspec"]);
     assert!(out.contains("No resources found"), "{out}");
     // Without the token, nothing.
-    let out = Command::new(&kubectl)
-        .env("HOME", dir.path())
+    let out = Command::new(&kube.kubectl)
+        .env("HOME", kube.dir.path())
         .args([
             "--server",
-            &format!("https://127.0.0.1:{port}"),
+            &format!("https://127.0.0.1:{}", kube.port),
             "--insecure-skip-tls-verify",
             "get",
             "rs",
@@ -318,13 +215,4 @@ fn stock_kubectl_works() {
         .output()
         .unwrap();
     assert!(!out.status.success());
-}
-
-fn which(name: &str) -> Result<PathBuf, ()> {
-    std::env::var_os("PATH")
-        .into_iter()
-        .flat_map(|p| std::env::split_paths(&p).collect::<Vec<_>>())
-        .map(|d| d.join(name))
-        .find(|p| p.is_file())
-        .ok_or(())
 }

@@ -15,8 +15,12 @@ use configbot_controller::tuning::robot::Robot;
 use configbot_controller::tuning::runner::{self, RunnerCtx};
 use configbot_controller::tuning::sim::{SimInput, SimNode, SimRobot};
 use configbot_manifests::Kind;
+use configbot_test_support::{try_wait_until, try_wait_until_async, wait_until_async};
 use configbot_tuning::machine::{Remedy, State};
 use serde_json::{Value, json};
+
+/// How often the tests' condition waits look.
+const POLL: Duration = Duration::from_millis(20);
 
 fn node(
     name: &str,
@@ -167,20 +171,15 @@ impl Fixture {
 
     /// Wait (real time, with a timeout) until `f` holds on the persisted run.
     async fn until(&self, what: &str, f: impl Fn(&configbot_tuning::machine::Run) -> bool) {
-        let deadline = tokio::time::Instant::now() + Duration::from_secs(240);
-        loop {
-            if let Ok(Some(r)) = runner::load_run(&self.store, "default", "nav-spec")
-                && f(&r)
-            {
-                return;
-            }
-            assert!(
-                tokio::time::Instant::now() < deadline,
-                "timed out waiting for {what}; events: {:#?}",
-                self.events()
-            );
-            tokio::time::sleep(Duration::from_millis(20)).await;
-        }
+        let held = async || {
+            runner::load_run(&self.store, "default", "nav-spec")
+                .ok()
+                .flatten()
+                .is_some_and(|r| f(&r))
+        };
+        try_wait_until_async(what, Duration::from_secs(240), POLL, held)
+            .await
+            .unwrap_or_else(|e| panic!("{e}; events: {:#?}", self.events()));
     }
 }
 
@@ -582,18 +581,17 @@ async fn server_with_a_robot_starts_a_runner_per_spec_and_stops_it_on_delete() {
     store
         .put(Kind::PerformanceSpec, spec(35.0, 6, json!({})), true)
         .unwrap();
-    let deadline = tokio::time::Instant::now() + Duration::from_secs(120);
-    let status = loop {
-        let obj = store
-            .get(Kind::PerformanceSpec, "default", "nav-spec")
-            .unwrap()
-            .unwrap();
-        if obj["status"]["phase"] == "Monitoring" {
-            break obj["status"].clone();
-        }
-        assert!(tokio::time::Instant::now() < deadline, "{obj:#}");
-        tokio::time::sleep(Duration::from_millis(20)).await;
-    };
+    let mut last = Value::Null;
+    let monitoring =
+        try_wait_until_async("Monitoring", Duration::from_secs(120), POLL, async || {
+            last = store
+                .get(Kind::PerformanceSpec, "default", "nav-spec")
+                .unwrap()
+                .unwrap();
+            (last["status"]["phase"] == "Monitoring").then(|| last["status"].clone())
+        })
+        .await;
+    let status = monitoring.unwrap_or_else(|e| panic!("{e}: {last:#}"));
     let cond = |t: &str| {
         status["conditions"]
             .as_array()
@@ -666,15 +664,11 @@ async fn server_with_a_robot_starts_a_runner_per_spec_and_stops_it_on_delete() {
     });
     let mut seen = String::new();
     let read_until = |seen: &mut String, what: &str| {
-        let deadline = std::time::Instant::now() + Duration::from_secs(30);
-        while !seen.contains(what) {
-            let left = deadline.saturating_duration_since(std::time::Instant::now());
-            match rx.recv_timeout(left) {
-                Ok(chunk) => seen.push_str(&chunk),
-                Err(_) => return false,
-            }
-        }
-        true
+        try_wait_until(what, Duration::from_secs(30), POLL, || {
+            seen.extend(rx.try_iter());
+            seen.contains(what)
+        })
+        .is_ok()
     };
     assert!(
         read_until(&mut seen, "nav-spec: Monitoring"),
@@ -713,18 +707,18 @@ async fn server_with_a_robot_starts_a_runner_per_spec_and_stops_it_on_delete() {
     store
         .delete(Kind::PerformanceSpec, "default", "nav-spec")
         .unwrap();
-    let deadline = tokio::time::Instant::now() + Duration::from_secs(30);
-    while !tuning.running().is_empty()
-        || runner::load_run(&store, "default", "nav-spec")
-            .unwrap()
-            .is_some()
-    {
-        assert!(
-            tokio::time::Instant::now() < deadline,
-            "runner still running"
-        );
-        tokio::time::sleep(Duration::from_millis(20)).await;
-    }
+    wait_until_async(
+        "the runner to stop",
+        Duration::from_secs(30),
+        POLL,
+        async || {
+            tuning.running().is_empty()
+                && runner::load_run(&store, "default", "nav-spec")
+                    .unwrap()
+                    .is_none()
+        },
+    )
+    .await;
     drop(tuning);
     server.stop();
 }

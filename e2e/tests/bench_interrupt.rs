@@ -11,6 +11,11 @@ mod common;
 use std::process::{Child, Command, ExitStatus};
 use std::time::{Duration, Instant};
 
+use configbot_test_support::try_wait_until;
+
+/// How often the waits for the bench and its nodes look.
+const POLL: Duration = Duration::from_millis(50);
+
 /// The bench process; killed, and its cgroups and nodes removed, on drop.
 struct Bench {
     child: Child,
@@ -22,14 +27,10 @@ impl Bench {
     }
 
     fn wait_exit(&mut self, timeout: Duration) -> Option<ExitStatus> {
-        let deadline = Instant::now() + timeout;
-        while Instant::now() < deadline {
-            if let Ok(Some(s)) = self.child.try_wait() {
-                return Some(s);
-            }
-            std::thread::sleep(Duration::from_millis(50));
-        }
-        None
+        try_wait_until("the bench to exit", timeout, POLL, || {
+            self.child.try_wait().ok().flatten()
+        })
+        .ok()
     }
 }
 
@@ -80,7 +81,7 @@ fn interrupt_when(
         .ok()
         .and_then(|l| l.v1_cpu)
     else {
-        common::skip("no cgroup v1 cpu hierarchy");
+        configbot_test_support::skip("no cgroup v1 cpu hierarchy");
         return;
     };
     let _serial = common::serial();
@@ -106,22 +107,18 @@ fn interrupt_when(
     };
 
     let started = Instant::now();
-    let nodes = loop {
+    let found = try_wait_until(what, wait, Duration::from_millis(100), || {
         let pids = pids_below(&subtree);
         if ready(&pids, &stdout()) {
-            break pids;
+            return Some(pids);
         }
         if let Ok(Some(s)) = bench.child.try_wait() {
             panic!("the bench exited ({s}) before {what}: {}", logs());
         }
-        assert!(
-            started.elapsed() < wait,
-            "not {what} within {} s: {}",
-            wait.as_secs(),
-            logs()
-        );
-        std::thread::sleep(Duration::from_millis(100));
-    };
+        None
+    });
+    let nodes =
+        found.unwrap_or_else(|_| panic!("not {what} within {} s: {}", wait.as_secs(), logs()));
     assert!(nodes.iter().all(|&p| alive(p)));
 
     let pid = libc::pid_t::try_from(bench.child.id()).expect("pid");
@@ -145,13 +142,12 @@ fn interrupt_when(
     // The subtree is gone in every hierarchy, and so are the nodes.
     let left = common::cgroup_dirs(&bench.root());
     assert!(left.is_empty(), "left behind: {left:?}: {}", logs());
-    let deadline = Instant::now() + Duration::from_secs(5);
     let mut running: Vec<u32> = nodes.clone();
-    while !running.is_empty() && Instant::now() < deadline {
+    let gone = try_wait_until("the nodes to end", Duration::from_secs(5), POLL, || {
         running.retain(|&p| alive(p));
-        std::thread::sleep(Duration::from_millis(50));
-    }
-    assert!(running.is_empty(), "nodes still running: {running:?}");
+        running.is_empty()
+    });
+    gone.unwrap_or_else(|e| panic!("{e}: nodes still running: {running:?}"));
     eprintln!(
         "bench interrupted (signal {signal}) {:.1} s after start, {what}, with {} node processes: exited {status} {:.1} s later, subtree and nodes gone",
         sent.duration_since(started).as_secs_f64(),

@@ -15,17 +15,20 @@
 
 mod common;
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
+
+use configbot_test_support::{CpuCgroup, try_wait_until};
 
 use serde_json::Value;
 
 /// The bench process; killed, and its cgroups and nodes removed, on drop.
 struct Bench {
     child: Child,
-    /// Its own cpu cgroup (`configbot-e2e-<test pid>-bench`), if there is a cpu hierarchy.
-    ctl: Option<PathBuf>,
+    /// Its own cpu cgroup (`configbot-e2e-<test pid>-<n>-bench`), if there is
+    /// a cpu hierarchy; it drops after `Drop::drop` killed the bench.
+    ctl: Option<CpuCgroup>,
 }
 
 impl Bench {
@@ -33,12 +36,13 @@ impl Bench {
         let cpu = configbot_cgroups::Layout::detect()
             .ok()
             .and_then(|l| l.v1_cpu);
-        let ctl = cpu.map(|c| c.join(format!("{}-bench", common::unique_root())));
-        if let Some(d) = &ctl {
-            std::fs::create_dir_all(d).expect("create the bench's cpu cgroup");
-            std::fs::write(d.join("cpu.shares"), common::ROBOT_SHARES.to_string())
+        let ctl = cpu.map(|c| {
+            let ctl = CpuCgroup::create(&c, &format!("{}-bench", common::unique_root()))
+                .expect("create the bench's cpu cgroup");
+            ctl.set("cpu.shares", common::ROBOT_SHARES)
                 .expect("set cpu.shares");
-        }
+            ctl
+        });
         let child = Command::new(common::configbot_bin())
             .args(["bench", "--quick", "--out"])
             .arg(out)
@@ -50,8 +54,8 @@ impl Bench {
             .spawn()
             .expect("start configbot bench");
         let b = Bench { child, ctl };
-        if let Some(d) = &b.ctl {
-            std::fs::write(d.join("cgroup.procs"), b.child.id().to_string())
+        if let Some(ctl) = &b.ctl {
+            ctl.add(b.child.id())
                 .expect("move the bench into its cgroup");
         }
         b
@@ -66,9 +70,6 @@ impl Drop for Bench {
     fn drop(&mut self) {
         let root = self.root();
         common::kill_and_remove(&mut self.child, &root);
-        if let Some(d) = &self.ctl {
-            let _ = std::fs::remove_dir(d);
-        }
     }
 }
 
@@ -132,19 +133,14 @@ fn secs(v: &Value, what: &str) -> f64 {
 /// and left no cgroup behind; returns what it printed.
 fn finish(bench: &mut Bench, log: &Path, limit: Duration) -> String {
     let root = bench.root();
-    let deadline = Instant::now() + limit;
-    let status = loop {
-        if let Some(s) = bench.child.try_wait().expect("wait") {
-            break s;
-        }
-        assert!(
-            Instant::now() < deadline,
-            "bench --quick still running after {} s:\n{}",
-            limit.as_secs(),
-            std::fs::read_to_string(log).unwrap_or_default()
-        );
-        std::thread::sleep(Duration::from_millis(200));
-    };
+    let exited = try_wait_until(
+        "bench --quick to exit",
+        limit,
+        Duration::from_millis(200),
+        || bench.child.try_wait().expect("wait"),
+    );
+    let status = exited
+        .unwrap_or_else(|e| panic!("{e}:\n{}", std::fs::read_to_string(log).unwrap_or_default()));
     let printed = std::fs::read_to_string(log).unwrap_or_default();
     assert!(
         status.success(),

@@ -9,22 +9,14 @@
 
 mod common;
 
-use std::process::{Child, Command, Stdio};
+use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
+
+use configbot_test_support::{ChildGuard, try_wait_until, wait_until};
 
 use common::{
     NodeRun, Robot, TestNode, app, configbot_bin, hog_stack_with, now_ms, phase, rfc3339_secs,
 };
-
-/// The hog the test starts; killed on drop even when the test fails.
-struct Spawned(Child);
-
-impl Drop for Spawned {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
 
 fn outcome(o: &serde_json::Value) -> bool {
     matches!(phase(o), "Monitoring" | "Unsat")
@@ -65,7 +57,7 @@ fn new_app_is_detected_and_known_context_reapplies_fast() {
     // Start /hog6 as a user would, outside ConfigBot.
     let trials_in_a = robot.events_with(name, "Trial").len();
     let before_exec = now_ms();
-    let hog = Spawned(
+    let hog = ChildGuard(
         Command::new(configbot_bin())
             .args([
                 "simnode",
@@ -115,14 +107,12 @@ fn new_app_is_detected_and_known_context_reapplies_fast() {
     }
     // The agent adopted /hog6 into its node cgroup (so its CPU knob acts on it).
     let hog_pid = hog.0.id();
-    let deadline = Instant::now() + Duration::from_secs(10);
-    while !common::node_pids(&robot.root, "/hog6").contains(&hog_pid) {
-        assert!(
-            Instant::now() < deadline,
-            "/hog6 (pid {hog_pid}) not adopted into its cgroup"
-        );
-        std::thread::sleep(Duration::from_millis(100));
-    }
+    wait_until(
+        &format!("/hog6 (pid {hog_pid}) to be adopted into its cgroup"),
+        Duration::from_secs(10),
+        Duration::from_millis(100),
+        || common::node_pids(&robot.root, "/hog6").contains(&hog_pid),
+    );
 
     // Context B: relearned (or reused), ending in an outcome with /hog6 in the context.
     let b = robot.wait_for(
@@ -172,15 +162,13 @@ fn new_app_is_detected_and_known_context_reapplies_fast() {
     let applied = if b_has_a_quotas {
         "not observable in the cgroups (B kept A's hog quotas)".to_string()
     } else {
-        let deadline = Instant::now() + Duration::from_secs(10);
-        while !common::quotas_match(&robot.root, &config_a) {
-            assert!(
-                Instant::now() < deadline,
-                "A's config {config_a} not re-applied\n{}",
-                robot.event_log(name)
-            );
-            std::thread::sleep(Duration::from_millis(10));
-        }
+        let reapplied = try_wait_until(
+            &format!("A's config {config_a} to be re-applied"),
+            Duration::from_secs(10),
+            Duration::from_millis(10),
+            || common::quotas_match(&robot.root, &config_a),
+        );
+        reapplied.unwrap_or_else(|e| panic!("{e}\n{}", robot.event_log(name)));
         let applied_after = now_ms() - killed_ms;
         assert!(
             applied_after < 2000,

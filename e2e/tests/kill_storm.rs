@@ -24,6 +24,8 @@ mod common;
 use std::collections::{BTreeMap, BTreeSet};
 use std::time::{Duration, Instant};
 
+use configbot_test_support::try_wait_until;
+
 use common::{
     HOG_STACK_NODES, Robot, hog_stack, node_pids, phase, simnode_processes, trial_history,
 };
@@ -146,23 +148,29 @@ fn node_problems(robot: &Robot) -> Result<Option<String>, String> {
 /// Polls [`node_problems`] until none is left; panics on a broken
 /// invariant or after `timeout`.
 fn check_nodes(robot: &Robot, when: &str, timeout: Duration) {
-    let deadline = Instant::now() + timeout;
-    loop {
-        match node_problems(robot) {
-            Ok(None) => return,
-            Err(broken) => panic!(
-                "{when}: {broken}\nserver log:\n{}\nagent log:\n{}",
-                robot.server_log(),
-                robot.agent_log()
-            ),
-            Ok(Some(pending)) if Instant::now() > deadline => panic!(
-                "{when}: after {timeout:?}, {pending}\nserver log:\n{}\nagent log:\n{}",
-                robot.server_log(),
-                robot.agent_log()
-            ),
-            Ok(Some(_)) => std::thread::sleep(Duration::from_millis(50)),
-        }
-    }
+    let logs = || {
+        format!(
+            "server log:\n{}\nagent log:\n{}",
+            robot.server_log(),
+            robot.agent_log()
+        )
+    };
+    let mut pending = String::new();
+    let settled =
+        try_wait_until(
+            "the nodes",
+            timeout,
+            Duration::from_millis(50),
+            || match node_problems(robot) {
+                Ok(None) => true,
+                Err(broken) => panic!("{when}: {broken}\n{}", logs()),
+                Ok(Some(p)) => {
+                    pending = p;
+                    false
+                }
+            },
+        );
+    settled.unwrap_or_else(|_| panic!("{when}: after {timeout:?}, {pending}\n{}", logs()));
 }
 
 /// Requires `after` to extend `before`: every trial of `before` is in
@@ -209,7 +217,7 @@ fn kill_storm_during_tuning_loses_nothing() {
         .and_then(|l| l.v1_cpu)
         .is_none()
     {
-        common::skip("no cgroup v1 cpu hierarchy");
+        configbot_test_support::skip("no cgroup v1 cpu hierarchy");
         return;
     }
     let t0 = Instant::now();

@@ -9,11 +9,24 @@ mod common;
 use std::time::{Duration, Instant};
 
 use common::{HOG_STACK_NODES, HOGS, Robot, hog_stack, node_pids, phase};
+use configbot_test_support::try_wait_until;
 
 /// The scheduler state letter of `pid` (`T` stopped, `Z` zombie).
 fn state(pid: u32) -> Option<char> {
     let s = std::fs::read_to_string(format!("/proc/{pid}/stat")).ok()?;
     s.rsplit_once(')')?.1.trim_start().chars().next()
+}
+
+/// Waits until no hog has a process in its cgroup; panics with the events
+/// about spec `name` after `timeout`.
+fn hogs_gone(robot: &Robot, name: &str, timeout: Duration) {
+    let gone = try_wait_until(
+        "the hogs to stop",
+        timeout,
+        Duration::from_millis(100),
+        || HOGS.iter().all(|h| node_pids(&robot.root, h).is_empty()),
+    );
+    gone.unwrap_or_else(|e| panic!("{e}\n{}", robot.event_log(name)));
 }
 
 /// Whether `pid` is a live (not zombie) process.
@@ -43,21 +56,19 @@ fn remediation_stops_the_non_core_app() {
     // The hogs' processes are gone from their cgroups (and from the machine):
     // a graceful stop takes at most 2 × stopTimeout (5 s) per node, the
     // nodes of an app stop in parallel.
-    let deadline = Instant::now() + Duration::from_secs(30);
-    while HOGS.iter().any(|h| !node_pids(&robot.root, h).is_empty()) {
-        assert!(
-            Instant::now() < deadline,
-            "hogs still running\n{}",
-            robot.event_log(name)
-        );
-        std::thread::sleep(Duration::from_millis(100));
-    }
+    hogs_gone(&robot, name, Duration::from_secs(30));
     // ... and from the machine (a zombie not yet reaped by the server counts as gone).
-    let deadline = Instant::now() + Duration::from_secs(5);
-    while let Some(p) = hog_pids.iter().find(|p| running(**p)) {
-        assert!(Instant::now() < deadline, "hog pid {p} still running");
-        std::thread::sleep(Duration::from_millis(50));
-    }
+    let mut left = Vec::new();
+    let gone = try_wait_until(
+        "the hogs' processes to end",
+        Duration::from_secs(5),
+        Duration::from_millis(50),
+        || {
+            left = hog_pids.iter().filter(|p| running(**p)).collect();
+            left.is_empty()
+        },
+    );
+    gone.unwrap_or_else(|e| panic!("{e}: hog pids {left:?} still running"));
     let stopped_at = Instant::now();
     // The constraint monitor keeps measuring while remediating: at least 12
     // one-second windows after the stop, all within the core constraint.
@@ -140,15 +151,13 @@ fn a_frozen_remediation_records_the_inputs_and_thaws_when_the_annotation_allows_
     );
     let bag = rec.rsplit_once(" to ").map(|(_, p)| p.to_string()).unwrap();
     // Frozen, not stopped: the same processes, all in state T.
-    let deadline = Instant::now() + Duration::from_secs(15);
-    while !hog_pids.iter().all(|p| state(*p) == Some('T')) {
-        assert!(
-            Instant::now() < deadline,
-            "hogs not frozen\n{}",
-            robot.event_log(name)
-        );
-        std::thread::sleep(Duration::from_millis(100));
-    }
+    let frozen = try_wait_until(
+        "the hogs to be frozen",
+        Duration::from_secs(15),
+        Duration::from_millis(100),
+        || hog_pids.iter().all(|p| state(*p) == Some('T')),
+    );
+    frozen.unwrap_or_else(|e| panic!("{e}\n{}", robot.event_log(name)));
     let now: Vec<u32> = HOGS
         .iter()
         .flat_map(|h| node_pids(&robot.root, h))
@@ -166,18 +175,17 @@ fn a_frozen_remediation_records_the_inputs_and_thaws_when_the_annotation_allows_
         undone.contains("thawed hogs") && undone.contains(&format!("inputs recorded to {bag}")),
         "{undone}"
     );
-    let deadline = Instant::now() + Duration::from_secs(20);
-    while !hog_pids
-        .iter()
-        .all(|p| running(*p) && state(*p) != Some('T'))
-    {
-        assert!(
-            Instant::now() < deadline,
-            "hogs not thawed (the same processes, running)\n{}",
-            robot.event_log(name)
-        );
-        std::thread::sleep(Duration::from_millis(100));
-    }
+    let thawed = try_wait_until(
+        "the hogs to be thawed (the same processes, running)",
+        Duration::from_secs(20),
+        Duration::from_millis(100),
+        || {
+            hog_pids
+                .iter()
+                .all(|p| running(*p) && state(*p) != Some('T'))
+        },
+    );
+    thawed.unwrap_or_else(|e| panic!("{e}\n{}", robot.event_log(name)));
     let info = std::process::Command::new("/usr/bin/rosbag")
         .args(["info", "--yaml", "--key", "messages", &bag])
         .env("ROS_HOME", robot.dir.path())
@@ -213,29 +221,24 @@ fn remediation_is_undone_when_the_spec_field_allows_tuning() {
     robot.wait_nodes(&HOG_STACK_NODES);
     robot.apply(&paused);
     robot.wait_event(name, "Remediated", Duration::from_secs(30), |_| true);
-    let deadline = Instant::now() + Duration::from_secs(15);
-    while HOGS.iter().any(|h| !node_pids(&robot.root, h).is_empty()) {
-        assert!(
-            Instant::now() < deadline,
-            "hogs still running\n{}",
-            robot.event_log(name)
-        );
-        std::thread::sleep(Duration::from_millis(100));
-    }
+    hogs_gone(&robot, name, Duration::from_secs(15));
     robot.apply(spec);
-    let deadline = Instant::now() + Duration::from_secs(30);
-    while HOGS.iter().any(|h| node_pids(&robot.root, h).is_empty()) {
-        assert!(
-            Instant::now() < deadline,
-            "hogs not restarted 30 s after tuning.allowed became true (phase {})\n{}",
+    let back = try_wait_until(
+        "the hogs to restart after tuning.allowed became true",
+        Duration::from_secs(30),
+        Duration::from_millis(100),
+        || HOGS.iter().all(|h| !node_pids(&robot.root, h).is_empty()),
+    );
+    back.unwrap_or_else(|e| {
+        panic!(
+            "{e} (phase {})\n{}",
             robot
                 .get("pspec", name)
                 .map(|o| phase(&o).to_string())
                 .unwrap_or_default(),
             robot.event_log(name)
-        );
-        std::thread::sleep(Duration::from_millis(100));
-    }
+        )
+    });
     eprintln!(
         "e2e remediation field undo: hogs back; {:.0} s",
         t0.elapsed().as_secs_f64()

@@ -4,6 +4,8 @@ mod common;
 
 use std::time::Duration;
 
+use configbot_test_support::try_wait_until;
+
 #[test]
 fn serve_with_agent_accepts_a_stack() {
     let robot = common::Robot::start();
@@ -17,14 +19,11 @@ fn serve_with_agent_accepts_a_stack() {
     );
     // Its four nodes (lidar, camera, navigation, detector) run inside the
     // robot's cgroup subtree.
-    let deadline = std::time::Instant::now() + Duration::from_secs(30);
-    while robot.pids().len() < 4 {
-        assert!(
-            std::time::Instant::now() < deadline,
-            "nodes did not start: {:?}\n{}",
-            robot.pids(),
-            robot.server_log()
-        );
-        std::thread::sleep(Duration::from_millis(100));
-    }
+    let started = try_wait_until(
+        "the four nodes to start",
+        Duration::from_secs(30),
+        Duration::from_millis(100),
+        || robot.pids().len() >= 4,
+    );
+    started.unwrap_or_else(|e| panic!("{e}: {:?}\n{}", robot.pids(), robot.server_log()));
 }

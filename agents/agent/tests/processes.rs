@@ -10,6 +10,7 @@ use std::time::Duration;
 use common::*;
 use configbot_agent::{AgentEvent, policy::ExitKind};
 use configbot_cgroups::{CgroupBackend, CpuLimit, CpuWeight};
+use configbot_test_support::{kill9, wait_until_async};
 
 const T: Duration = Duration::from_secs(20);
 
@@ -25,8 +26,14 @@ async fn run_node_is_in_its_cgroup_from_its_first_instruction() {
     let agent = env.start(stack).await;
     // Supervisors start inside Agent::start: poll the logs rather than events.
     let read = |n: &str| std::fs::read_to_string(agent.log_path(&node(n))).unwrap_or_default();
-    wait_until(T, "probe output", || read("/probe").contains(":cpuacct:")).await;
-    wait_until(T, "whoami output", || read("/whoami").lines().count() >= 3).await;
+    wait_until_async("probe output", T, POLL, async || {
+        read("/probe").contains(":cpuacct:")
+    })
+    .await;
+    wait_until_async("whoami output", T, POLL, async || {
+        read("/whoami").lines().count() >= 3
+    })
+    .await;
     // `cat` read /proc/self/cgroup as its own first action: it was already inside.
     let log = std::fs::read_to_string(agent.log_path(&node("/probe"))).unwrap();
     let want = format!("/{}/node-probe", env.root);
@@ -97,7 +104,7 @@ async fn process_started_before_the_agent_is_adopted_with_all_threads() {
     let pid = child.id();
     env.children.push(child);
     let task_dir = format!("/proc/{pid}/task");
-    wait_until(T, "python threads", || {
+    wait_until_async("python threads", T, POLL, async || {
         std::fs::read_dir(&task_dir).unwrap().count() >= 5
     })
     .await;
@@ -117,7 +124,7 @@ async fn process_started_before_the_agent_is_adopted_with_all_threads() {
         "{tids:?} vs {in_cg:?}"
     );
     // The child it forks later lands in the node's cgroup too.
-    wait_until(T, "later child in cgroup", || {
+    wait_until_async("later child in cgroup", T, POLL, async || {
         agent.backend().pids(&n).unwrap().len() >= 2
     })
     .await;
@@ -143,7 +150,7 @@ async fn crashed_run_nodes_restart_per_policy_with_backoff() {
     let mut delays = Vec::new();
     while delays.len() < 4 {
         if let AgentEvent::NodeRestarting { delay_ms, .. } =
-            wait_event(&mut rx, T, |e| matches!(e, AgentEvent::NodeRestarting { node, .. } if *node == common::node("/fails"))).await
+            wait_event(&mut rx, "a restart of /fails", T, |e| matches!(e, AgentEvent::NodeRestarting { node, .. } if *node == common::node("/fails"))).await
         {
             delays.push(delay_ms);
         }
@@ -153,7 +160,7 @@ async fn crashed_run_nodes_restart_per_policy_with_backoff() {
         delays.windows(2).all(|w| w[1] == (w[0] * 2).min(160)),
         "{delays:?}"
     );
-    wait_until(T, "always restarts", || {
+    wait_until_async("always restarts", T, POLL, async || {
         agent
             .inventory()
             .iter()
@@ -191,7 +198,7 @@ async fn app_stop_is_graceful_and_start_brings_it_back() {
     }
     let other_pid = agent.backend().pids(&node("/other")).unwrap();
     // Give the shell a moment to install its trap (it runs before the loop).
-    wait_until(T, "trap installed", || {
+    wait_until_async("trap installed", T, POLL, async || {
         let pid = agent.backend().pids(&polite).unwrap()[0];
         std::fs::read_to_string(format!("/proc/{pid}/status"))
             .map(|s| {
@@ -250,6 +257,7 @@ async fn a_frozen_app_uses_no_cpu_until_thawed_and_still_stops_gracefully() {
     agent.freeze_app("hogs").unwrap();
     wait_event(
         &mut events,
+        "the hogs frozen",
         T,
         |e| matches!(e, AgentEvent::AppFrozen { app } if app == "hogs"),
     )
@@ -259,7 +267,10 @@ async fn a_frozen_app_uses_no_cpu_until_thawed_and_still_stops_gracefully() {
         let pids = agent.backend().pids(n).unwrap();
         !pids.is_empty() && pids.iter().all(|p| proc_state(*p) == Some('T'))
     };
-    wait_until(T, "hogs stopped", || stopped(&hog) && stopped(&forker)).await;
+    wait_until_async("hogs stopped", T, POLL, async || {
+        stopped(&hog) && stopped(&forker)
+    })
+    .await;
     let frozen_use = measure_cpus(agent.backend(), &hog, Duration::from_secs(1)).await;
     eprintln!("frozen busy node: {frozen_use:.4} cpus");
     assert!(frozen_use < 0.01, "a frozen node used {frozen_use} CPUs");
@@ -277,14 +288,14 @@ async fn a_frozen_app_uses_no_cpu_until_thawed_and_still_stops_gracefully() {
     for p in &old {
         kill9(*p);
     }
-    wait_until(T, "the forker restarted and frozen", || {
+    wait_until_async("the forker restarted and frozen", T, POLL, async || {
         let now = agent.backend().pids(&forker).unwrap();
         !now.is_empty() && now.iter().all(|p| !old.contains(p)) && stopped(&forker)
     })
     .await;
 
     agent.thaw_app("hogs").unwrap();
-    wait_until(T, "hogs running", || {
+    wait_until_async("hogs running", T, POLL, async || {
         agent
             .backend()
             .pids(&hog)
@@ -300,7 +311,7 @@ async fn a_frozen_app_uses_no_cpu_until_thawed_and_still_stops_gracefully() {
 
     // Stopping a frozen app is still graceful: it is thawed for its SIGINT.
     agent.freeze_app("hogs").unwrap();
-    wait_until(T, "hogs stopped again", || stopped(&hog)).await;
+    wait_until_async("hogs stopped again", T, POLL, async || stopped(&hog)).await;
     // (Without the thaw, SIGINT and SIGTERM stay pending and SIGKILL ends it
     // without running the trap.)
     agent.stop_app("hogs").await.unwrap();
@@ -337,7 +348,10 @@ async fn a_process_matching_two_match_nodes_is_claimed_once() {
             ppid: Some(1),
             comm: Some("sleep".into()),
         });
-        wait_event(&mut rx, T, |e| matches!(e, AgentEvent::ProcessExec { .. })).await;
+        wait_event(&mut rx, "the exec event", T, |e| {
+            matches!(e, AgentEvent::ProcessExec { .. })
+        })
+        .await;
         tokio::time::sleep(Duration::from_millis(150)).await;
     }
     assert_eq!(agent.backend().pids(&node("/one")).unwrap(), [pid]);

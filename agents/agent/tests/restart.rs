@@ -6,22 +6,14 @@ mod common;
 
 use std::os::unix::net::UnixStream;
 use std::path::Path;
-use std::process::{Child, Command};
-use std::time::{Duration, Instant};
+use std::process::Command;
+use std::time::Duration;
 
 use common::*;
 use configbot_cgroups::{CgroupBackend, CpuMax};
+use configbot_test_support::{ChildGuard, kill9, wait_until};
 
-struct AgentProc(Child);
-
-impl Drop for AgentProc {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
-
-fn spawn_agent(env: &Env, stack: &Path, socket: &Path) -> AgentProc {
+fn spawn_agent(env: &Env, stack: &Path, socket: &Path) -> ChildGuard {
     let child = Command::new(env!("CARGO_BIN_EXE_configbot-agent"))
         .args(["--stack", stack.to_str().unwrap()])
         .args(["--cgroup-root", &env.root])
@@ -32,7 +24,7 @@ fn spawn_agent(env: &Env, stack: &Path, socket: &Path) -> AgentProc {
         .args(["--no-ros", "--monitor", "none"])
         .spawn()
         .unwrap();
-    AgentProc(child)
+    ChildGuard(child)
 }
 
 fn request(socket: &Path, method: &str, path: &str, body: Option<&str>) -> Option<(u16, String)> {
@@ -41,21 +33,13 @@ fn request(socket: &Path, method: &str, path: &str, body: Option<&str>) -> Optio
 }
 
 fn wait_api(socket: &Path) {
-    let deadline = Instant::now() + Duration::from_secs(20);
-    while request(socket, "GET", "/v1/nodes", None).is_none() {
-        assert!(Instant::now() < deadline, "agent api never came up");
-        std::thread::sleep(Duration::from_millis(50));
-    }
+    wait_until("the agent api", WAIT, Duration::from_millis(50), || {
+        request(socket, "GET", "/v1/nodes", None).is_some()
+    });
 }
 
-/// Polls `cond` every 20 ms; fails with `what` after 20 s.
-fn wait(what: &str, cond: impl Fn() -> bool) {
-    let deadline = Instant::now() + Duration::from_secs(20);
-    while !cond() {
-        assert!(Instant::now() < deadline, "{what}");
-        std::thread::sleep(Duration::from_millis(20));
-    }
-}
+/// How long the agent api and the nodes may take to come up.
+const WAIT: Duration = Duration::from_secs(20);
 
 fn pids_of(b: &dyn CgroupBackend, n: &str) -> Vec<u32> {
     b.pids(&node(n)).unwrap_or_default()
@@ -88,7 +72,7 @@ fn kill_9_then_restart_readopts_everything_with_limits_intact() {
 
     let mut first = spawn_agent(&env, &stack, &socket);
     wait_api(&socket);
-    wait("nodes never came up", || {
+    wait_until("the nodes to come up", WAIT, POLL, || {
         !pids_of(&b, "/worker").is_empty() && pids_of(&b, "/found") == [target_pid]
     });
     let (code, body) = request(
@@ -149,7 +133,7 @@ fn kill_9_then_restart_readopts_everything_with_limits_intact() {
 
     // A re-attached run node is still supervised: killing it restarts it.
     kill9(worker_pid[0]);
-    wait("re-attached node not restarted", || {
+    wait_until("the re-attached node to be restarted", WAIT, POLL, || {
         let now = pids_of(&b, "/worker");
         !now.is_empty() && now != worker_pid
     });
@@ -205,7 +189,9 @@ fn an_app_frozen_before_a_kill_9_stays_frozen_and_thaws_after_the_restart() {
     let b = v1_backend(&env.root);
     let mut first = spawn_agent(&env, &stack, &socket);
     wait_api(&socket);
-    wait("node never came up", || !pids_of(&b, "/napper").is_empty());
+    wait_until("the node to come up", WAIT, POLL, || {
+        !pids_of(&b, "/napper").is_empty()
+    });
     let pid = pids_of(&b, "/napper")[0];
     let (code, body) = request(&socket, "POST", "/v1/apps/pause/freeze", None).unwrap();
     assert_eq!(code, 200, "{body}");

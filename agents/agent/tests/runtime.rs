@@ -11,14 +11,13 @@ use configbot_api::measure::{MeasureRequest, Probe};
 use configbot_manifests::{AdaptorRate, ResourceConfig};
 use configbot_procmon::{MonitorKind, Preference};
 
-use common::node;
-use common::rt::{RECORDING_MAX_MB, RtEnv, eventually, robot_stack, ros_available, stack_yaml};
+use common::rt::{
+    RECORDING_MAX_MB, RT_POLL, RtEnv, graph_pid, robot_stack, ros_available, stack_yaml,
+};
+use common::{node, try_wait_event, wait_event};
+use configbot_test_support::wait_until_async;
 
 const T: Duration = Duration::from_secs(40);
-
-fn graph_pid(rt: &configbot_agent::NodeRuntime, name: &str) -> Option<u32> {
-    rt.data_plane()?.graph().nodes.get(name)?.pid
-}
 
 fn cgroup_pids(rt: &configbot_agent::NodeRuntime, n: &str) -> Vec<u32> {
     rt.agent().backend().pids(&node(n)).unwrap_or_default()
@@ -60,22 +59,23 @@ async fn ros_nodes_are_adopted_limited_adapted_and_measured() {
     let listener = env.script("listener.py", &["listener", "/chatter"]);
     let listener_pid = env.procs[listener].pid();
 
-    eventually("both ROS nodes in their cgroups with graph pids", T, || {
-        let t = graph_pid(&rt, "/talker");
-        let l = graph_pid(&rt, "/listener");
-        t.is_some_and(|p| cgroup_pids(&rt, "/talker").contains(&p))
-            && l == Some(listener_pid)
-            && cgroup_pids(&rt, "/listener").contains(&listener_pid)
-    })
+    wait_until_async(
+        "both ROS nodes in their cgroups with graph pids",
+        T,
+        RT_POLL,
+        async || {
+            let t = graph_pid(&rt, "/talker");
+            let l = graph_pid(&rt, "/listener");
+            t.is_some_and(|p| cgroup_pids(&rt, "/talker").contains(&p))
+                && l == Some(listener_pid)
+                && cgroup_pids(&rt, "/listener").contains(&listener_pid)
+        },
+    )
     .await;
     // The event stream saw the graph change and the adoption by ROS name
     // (the agent's events reach it through a forwarding task: wait for them).
     let (mut graph_listener, mut adopted) = (false, false);
-    let end = Instant::now() + T;
-    while !(graph_listener && adopted) {
-        let Ok(Ok(ev)) = tokio::time::timeout_at(end.into(), events.recv()).await else {
-            break;
-        };
+    try_wait_event(&mut events, T, |ev| {
         match ev {
             RuntimeEvent::GraphChanged { events } => {
                 graph_listener |= events.iter().any(|g| {
@@ -88,7 +88,9 @@ async fn ros_nodes_are_adopted_limited_adapted_and_measured() {
             }
             _ => {}
         }
-    }
+        graph_listener && adopted
+    })
+    .await;
     assert!(
         graph_listener && adopted,
         "graph {graph_listener} adopted {adopted}"
@@ -103,7 +105,10 @@ async fn ros_nodes_are_adopted_limited_adapted_and_measured() {
             .iter()
             .any(|(e, c)| e.topic == "/chatter" && e.subscriber == "/listener" && c.forwarded > 0)
     };
-    eventually("messages through the adaptor", T, edge_adapted).await;
+    wait_until_async("messages through the adaptor", T, RT_POLL, async || {
+        edge_adapted()
+    })
+    .await;
 
     let req = MeasureRequest {
         probes: vec![
@@ -211,7 +216,10 @@ async fn set_stack_adds_removes_and_restarts_nodes_at_run_time() {
     };
     let rt = env.start(false, None, StackSpec::default()).await;
     rt.set_stack(&one("")).await.unwrap();
-    eventually("/one running", T, || cgroup_pids(&rt, "/one").len() == 1).await;
+    wait_until_async("/one running", T, RT_POLL, async || {
+        cgroup_pids(&rt, "/one").len() == 1
+    })
+    .await;
     let one_pid = cgroup_pids(&rt, "/one")[0];
 
     rt.set_stack(&one(
@@ -219,7 +227,10 @@ async fn set_stack_adds_removes_and_restarts_nodes_at_run_time() {
     ))
     .await
     .unwrap();
-    eventually("/two running", T, || cgroup_pids(&rt, "/two").len() == 1).await;
+    wait_until_async("/two running", T, RT_POLL, async || {
+        cgroup_pids(&rt, "/two").len() == 1
+    })
+    .await;
     assert_eq!(cgroup_pids(&rt, "/one"), [one_pid], "/one untouched");
     let two_pid = cgroup_pids(&rt, "/two")[0];
 
@@ -230,7 +241,7 @@ async fn set_stack_adds_removes_and_restarts_nodes_at_run_time() {
     .await
     .unwrap();
     // The new process joins its cgroup before it execs, so wait for the exec too.
-    eventually("/two restarted as sleep 302", T, || {
+    wait_until_async("/two restarted as sleep 302", T, RT_POLL, async || {
         let p = cgroup_pids(&rt, "/two");
         p.len() == 1
             && p[0] != two_pid
@@ -251,7 +262,7 @@ async fn set_stack_adds_removes_and_restarts_nodes_at_run_time() {
         !rt.agent().backend().exists(&node("/one")),
         "cgroup of /one left"
     );
-    eventually("/one's process gone", T, || {
+    wait_until_async("/one's process gone", T, RT_POLL, async || {
         std::fs::read_to_string(format!("/proc/{one_pid}/stat")).map_or(true, |s| s.contains(") Z"))
     })
     .await;
@@ -360,23 +371,26 @@ async fn http_api_and_client_round_trip_over_the_unix_socket() {
         &[("/camera", "talker.py", &["camera", "/image", "20"])],
     )));
     client.set_stack(&stack).await.unwrap();
-    let mut camera_pid = None;
-    let end = Instant::now() + T;
-    while camera_pid.is_none() {
-        assert!(Instant::now() < end, "camera never appeared in the graph");
-        let g = client.graph().await.unwrap();
-        camera_pid = g.nodes.get("/camera").and_then(|n| n.pid);
-        if g.topics
-            .get("/image")
-            .is_none_or(|t| t.publishers.is_empty())
-        {
-            camera_pid = None;
-        }
-        tokio::time::sleep(Duration::from_millis(100)).await;
-    }
+    let camera_pid = wait_until_async(
+        "the camera publishing /image in the graph",
+        T,
+        Duration::from_millis(100),
+        async || {
+            let g = client.graph().await.unwrap();
+            let publishes = g
+                .topics
+                .get("/image")
+                .is_some_and(|t| !t.publishers.is_empty());
+            g.nodes
+                .get("/camera")
+                .and_then(|n| n.pid)
+                .filter(|_| publishes)
+        },
+    )
+    .await;
     let inv = client.inventory().await.unwrap();
     assert_eq!(inv.len(), 1);
-    assert!(inv[0].pids.contains(&camera_pid.unwrap()), "{inv:?}");
+    assert!(inv[0].pids.contains(&camera_pid), "{inv:?}");
 
     client
         .apply(&ResourceConfig {
@@ -445,16 +459,13 @@ async fn http_api_and_client_round_trip_over_the_unix_socket() {
     );
 
     client.stop_app("cam").await.unwrap();
-    let end = Instant::now() + T;
-    loop {
-        let ev = tokio::time::timeout(end - Instant::now(), events.recv())
-            .await
-            .expect("no appStopped event through the client")
-            .unwrap();
-        if matches!(&ev, RuntimeEvent::Agent(AgentEvent::AppStopped { app }) if app == "cam") {
-            break;
-        }
-    }
+    wait_event(
+        &mut events,
+        "an appStopped event through the client",
+        T,
+        |ev| matches!(ev, RuntimeEvent::Agent(AgentEvent::AppStopped { app }) if app == "cam"),
+    )
+    .await;
     assert!(
         client
             .stop_app("nope")
@@ -498,19 +509,13 @@ async fn the_binary_runs_the_full_runtime_from_a_robot_stack_yaml() {
         .args(["--monitor", "auto"]);
     env.procs.push(common::rt::Proc::spawn(cmd));
     let client = configbot_agent::client::AgentClient::unix(&sock);
-    let end = Instant::now() + T;
-    let odom_pid = loop {
-        assert!(
-            Instant::now() < end,
-            "/odom never registered with the agent's master"
-        );
-        if let Ok(g) = client.graph().await
-            && let Some(pid) = g.nodes.get("/odom").and_then(|n| n.pid)
-        {
-            break pid;
-        }
-        tokio::time::sleep(Duration::from_millis(100)).await;
-    };
+    let odom_pid = wait_until_async(
+        "/odom to register with the agent's master",
+        T,
+        Duration::from_millis(100),
+        async || client.graph().await.ok()?.nodes.get("/odom")?.pid,
+    )
+    .await;
     let inv = client.inventory().await.unwrap();
     assert!(inv[0].pids.contains(&odom_pid), "{inv:?}");
     // Real ROS tools see the agent as the master.
@@ -589,7 +594,10 @@ async fn a_rosbag_recording_over_the_api_holds_the_topics_messages() {
             .map(|t| (t.publishers.len(), t.subscribers.clone()))
             .unwrap_or_default()
     };
-    eventually("/image published", T, || subscribers(&rt).0 == 1).await;
+    wait_until_async("/image published", T, RT_POLL, async || {
+        subscribers(&rt).0 == 1
+    })
+    .await;
     let mut events = client.events().await.unwrap();
 
     let image = vec!["/image".to_string()];
@@ -607,7 +615,7 @@ async fn a_rosbag_recording_over_the_api_holds_the_topics_messages() {
     let err = client.start_recording("../x", &image).await.unwrap_err();
     assert!(err.to_string().contains("400"), "{err}");
     // rosbag's recorder subscribes like any node (`/record_…`), then records.
-    eventually("rosbag subscribed to /image", T, || {
+    wait_until_async("rosbag subscribed to /image", T, RT_POLL, async || {
         subscribers(&rt).1.iter().any(|s| s.starts_with("/record"))
     })
     .await;
@@ -629,7 +637,7 @@ async fn a_rosbag_recording_over_the_api_holds_the_topics_messages() {
         path.display()
     );
     assert!(messages >= 20, "{info:?}");
-    eventually("rosbag's node unregistered", T, || {
+    wait_until_async("rosbag's node unregistered", T, RT_POLL, async || {
         !subscribers(&rt).1.iter().any(|s| s.starts_with("/record"))
     })
     .await;
@@ -678,7 +686,7 @@ async fn a_recording_stops_at_its_size_cap() {
             .get("/image")
             .is_some_and(|t| !t.publishers.is_empty())
     };
-    eventually("/image published", T, published).await;
+    wait_until_async("/image published", T, RT_POLL, async || published()).await;
     // 20 × 100 kB = 2 MB/s: the cap is reached in about a second.
     let path = rt
         .start_recording("capped", &["/image".to_string()])
@@ -686,7 +694,10 @@ async fn a_recording_stops_at_its_size_cap() {
         .unwrap()
         .expect("rosbag is installed with ros-core");
     // rosbag writes `<bag>.active` and renames it when it closes the bag.
-    eventually("rosbag closed the bag at its cap", T, || path.exists()).await;
+    wait_until_async("rosbag closed the bag at its cap", T, RT_POLL, async || {
+        path.exists()
+    })
+    .await;
     let bytes = std::fs::metadata(&path).unwrap().len();
     let cap = RECORDING_MAX_MB * 1024 * 1024;
     eprintln!("capped bag: {bytes} bytes (cap {cap})");
@@ -724,7 +735,7 @@ async fn a_recorder_left_by_a_killed_runtime_is_stopped() {
     let mut orphan = spawn(&bags);
     let mut other = spawn(&elsewhere);
     // (A SIGINT before the trap is set ends the script too.)
-    eventually("recorders started", T, || {
+    wait_until_async("recorders started", T, RT_POLL, async || {
         [orphan.pid(), other.pid()].iter().all(|p| {
             std::fs::read_to_string(format!("/proc/{p}/cmdline"))
                 .is_ok_and(|c| c.contains("record"))

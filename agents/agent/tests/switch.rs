@@ -5,20 +5,17 @@
 
 mod common;
 
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use configbot_agent::NodeRuntime;
 use configbot_api::measure::{MeasureRequest, Probe};
 
-use common::rt::{RtEnv, eventually, robot_stack, stack_yaml};
+use common::rt::{RT_POLL, RtEnv, graph_pid, robot_stack, stack_yaml};
+use configbot_test_support::{try_wait_until_async, wait_until_async};
 
 const T: Duration = Duration::from_secs(30);
 /// How long a topic may take to show messages again after a restart.
 const FLOW: Duration = Duration::from_secs(12);
-
-fn graph_pid(rt: &NodeRuntime, name: &str) -> Option<u32> {
-    rt.data_plane()?.graph().nodes.get(name)?.pid
-}
 
 /// Mean rate of `topic` over one second as the agent measures it.
 async fn rate(rt: &NodeRuntime, topic: &str) -> f64 {
@@ -35,22 +32,17 @@ async fn rate(rt: &NodeRuntime, topic: &str) -> f64 {
 
 /// Waits until the agent measures messages on `topic`.
 async fn flows(rt: &NodeRuntime, topic: &str, when: &str) {
-    let end = Instant::now() + FLOW;
-    loop {
-        let r = rate(rt, topic).await;
-        if r > 0.0 {
-            return;
-        }
-        assert!(
-            Instant::now() < end,
-            "{topic} measures 0 Hz for {FLOW:?} {when}"
-        );
-    }
+    // No pause between looks: each measures for a second.
+    try_wait_until_async("messages", FLOW, Duration::ZERO, async || {
+        rate(rt, topic).await > 0.0
+    })
+    .await
+    .unwrap_or_else(|_| panic!("{topic} measures 0 Hz for {FLOW:?} {when}"));
 }
 
 /// Waits until `name` runs as a new process (registered with the master).
 async fn restarted(rt: &NodeRuntime, name: &str, old: u32) -> u32 {
-    eventually(&format!("{name} restarted"), T, || {
+    wait_until_async(&format!("{name} restarted"), T, RT_POLL, async || {
         graph_pid(rt, name).is_some_and(|p| p != old)
     })
     .await;
@@ -74,7 +66,7 @@ async fn meters_follow_nodes_restarted_by_a_stack_switch() {
         )))
     };
     rt.set_stack(&stack("10", "a")).await.unwrap();
-    eventually("/src and /nav registered", T, || {
+    wait_until_async("/src and /nav registered", T, RT_POLL, async || {
         graph_pid(&rt, "/src").is_some() && graph_pid(&rt, "/nav").is_some()
     })
     .await;

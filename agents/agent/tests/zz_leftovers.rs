@@ -2,25 +2,13 @@
 //! in name order): no `configbot-agtest-<pid>-*` cgroup of a finished test
 //! process, and so no process inside one, may remain.
 
-use std::path::Path;
-
 #[test]
 fn no_test_cgroup_or_process_is_left_behind() {
     let layout = configbot_cgroups::Layout::detect().unwrap();
-    let mut left = Vec::new();
-    for mount in [layout.v1_cpu, layout.v1_cpuacct].into_iter().flatten() {
-        for e in std::fs::read_dir(&mount).unwrap() {
-            let name = e.unwrap().file_name().into_string().unwrap();
-            let Some(rest) = name.strip_prefix("configbot-agtest-") else {
-                continue;
-            };
-            let pid = rest.split('-').next().unwrap_or("");
-            // A live owner (a test binary still running, e.g. another clone's) is not ours to judge.
-            if pid != std::process::id().to_string() && Path::new("/proc").join(pid).exists() {
-                continue;
-            }
-            left.push(mount.join(&name));
-        }
-    }
+    let mounts: Vec<_> = [layout.v1_cpu, layout.v1_cpuacct]
+        .into_iter()
+        .flatten()
+        .collect();
+    let left = configbot_test_support::cgroup::leftovers(&mounts, "configbot-agtest");
     assert!(left.is_empty(), "left behind: {left:?}");
 }

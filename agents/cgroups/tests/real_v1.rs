@@ -3,10 +3,11 @@
 mod common;
 
 use std::collections::{BTreeMap, BTreeSet};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use common::{Tree, measure_cpus};
 use configbot_cgroups::{CgroupBackend, CgroupConfig, CpuLimit, CpuMax, CpuWeight, Error, apply};
+use configbot_test_support::{kill9, wait_until};
 
 const BUSY: &[&str] = &["-c", "while :; do :; done"];
 
@@ -60,11 +61,12 @@ fn add_pid_moves_every_thread_and_later_children() {
         ],
     );
     let task_dir = format!("/proc/{pid}/task");
-    let deadline = Instant::now() + Duration::from_secs(10);
-    while std::fs::read_dir(&task_dir).unwrap().count() < 5 {
-        assert!(Instant::now() < deadline, "python threads never started");
-        std::thread::sleep(Duration::from_millis(10));
-    }
+    wait_until(
+        "python's threads to start",
+        Duration::from_secs(10),
+        Duration::from_millis(10),
+        || std::fs::read_dir(&task_dir).unwrap().count() >= 5,
+    );
     t.backend.add_pid(&n, pid).unwrap();
     let tids: BTreeSet<u32> = std::fs::read_dir(&task_dir)
         .unwrap()
@@ -74,18 +76,15 @@ fn add_pid_moves_every_thread_and_later_children() {
     assert!(tids.len() >= 5);
     assert!(tids.is_subset(&in_cgroup), "{tids:?} not in {in_cgroup:?}");
     // The child forked after the move starts in the node's cgroup.
-    let deadline = Instant::now() + Duration::from_secs(10);
-    loop {
-        let pids = t.backend.pids(&n).unwrap();
-        if pids.len() >= 2 {
-            for p in pids.iter().filter(|p| **p != pid) {
-                // The `sleep` is not our child: kill it so the cgroup empties.
-                common::kill9(*p);
-            }
-            break;
-        }
-        assert!(Instant::now() < deadline, "child never appeared in cgroup");
-        std::thread::sleep(Duration::from_millis(20));
+    let pids = wait_until(
+        "the child in the cgroup",
+        Duration::from_secs(10),
+        Duration::from_millis(20),
+        || Some(t.backend.pids(&n).unwrap()).filter(|pids| pids.len() >= 2),
+    );
+    for p in pids.iter().filter(|p| **p != pid) {
+        // The `sleep` is not our child: kill it so the cgroup empties.
+        kill9(*p);
     }
 }
 

@@ -5,16 +5,14 @@
 //! an adaptor never hands it the direct connection, and an update the
 //! subscriber was too busy to answer is sent again. Needs no ROS install.
 
-mod common;
-
 use std::sync::{Arc, Mutex};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
-use common::free_port;
 use configbot_dataplane::EdgeId;
 use configbot_ros1::http::{self, BoxFut, Handler};
 use configbot_ros1::xmlrpc::{MethodCall, Response, Value};
 use configbot_ros1::{Placement, Ros1Config, Ros1DataPlane};
+use configbot_test_support::{free_port, try_wait_until_async};
 
 const TIMEOUT: Duration = Duration::from_secs(5);
 /// The master's timeout on calls to nodes in the stall test, and how long
@@ -143,14 +141,15 @@ async fn updates_until(
     recorder: &Recorder,
     done: impl Fn(&[Vec<String>]) -> bool,
 ) -> Vec<Vec<String>> {
-    let deadline = Instant::now() + Duration::from_secs(20);
-    loop {
-        let got = recorder.updates.lock().unwrap().clone();
-        if done(&got) || Instant::now() > deadline {
-            return got;
-        }
-        tokio::time::sleep(Duration::from_millis(20)).await;
-    }
+    let updates = || recorder.updates.lock().unwrap().clone();
+    let waited = try_wait_until_async(
+        "the publisherUpdates",
+        Duration::from_secs(20),
+        Duration::from_millis(20),
+        async || Some(updates()).filter(|got| done(got)),
+    )
+    .await;
+    waited.unwrap_or_else(|_| updates())
 }
 
 /// Waits until `recorder` has answered `n` publisherUpdates; returns them.

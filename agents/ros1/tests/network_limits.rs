@@ -4,16 +4,14 @@
 //! header. Each is answered with an error (an XML-RPC fault, a TCPROS error
 //! header), and the next ordinary request is served. Needs no ROS install.
 
-mod common;
-
 use std::time::Duration;
 
-use common::free_port;
 use configbot_ros1::http;
 use configbot_ros1::limits::{MAX_PARAM_DEPTH, MAX_TCPROS_HEADER, MAX_XMLRPC_BODY};
 use configbot_ros1::tcpros::{self, Header};
 use configbot_ros1::xmlrpc::Value;
 use configbot_ros1::{Ros1Config, Ros1DataPlane};
+use configbot_test_support::free_port;
 use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
 use tokio::net::TcpStream;
 

@@ -9,6 +9,7 @@ mod common;
 use std::time::{Duration, Instant};
 
 use common::*;
+use configbot_test_support::{free_port, wait_until};
 
 fn start_master(env: &RosEnv, port: u16, db: &std::path::Path, adapt: &str) -> Proc {
     let mut c = env.command(env!("CARGO_BIN_EXE_configbot-ros1-master"));
@@ -21,7 +22,7 @@ fn start_master(env: &RosEnv, port: u16, db: &std::path::Path, adapt: &str) -> P
         adapt,
     ]);
     let p = Proc::spawn(c);
-    wait_for("master up", Duration::from_secs(20), || {
+    wait_until("master up", Duration::from_secs(20), POLL, || {
         p.has_line("listening on")
     });
     p
@@ -52,7 +53,7 @@ fn kill_and_restart_keeps_graph_params_and_connections() {
     let la = env.script("listener.py", &[&adapted, &topic]);
     let recent =
         |p: &Proc| p.count_between(Instant::now() - Duration::from_secs(2), Instant::now());
-    wait_for("listeners receive", Duration::from_secs(20), || {
+    wait_until("listeners receive", Duration::from_secs(20), POLL, || {
         recent(&lp) > 20 && recent(&la) > 5
     });
     let ra = measure_rate(&la, 3.0);
@@ -60,12 +61,13 @@ fn kill_and_restart_keeps_graph_params_and_connections() {
 
     let doomed = unique("doomed");
     let mut doomed_p = env.script("listener.py", &[&doomed, &topic]);
-    wait_for(
+    wait_until(
         "doomed listener registered",
         Duration::from_secs(20),
+        POLL,
         || doomed_p.has_line("ready"),
     );
-    wait_for("doomed listed", Duration::from_secs(10), || {
+    wait_until("doomed listed", Duration::from_secs(10), POLL, || {
         env.run("rosnode", &["list"]).contains(doomed.as_str())
     });
 
@@ -73,18 +75,22 @@ fn kill_and_restart_keeps_graph_params_and_connections() {
     // cannot answer getPid, but it is alive: it is kept
     let frozen = unique("frozen");
     let frozen_p = env.script("listener.py", &[&frozen, &topic]);
-    wait_for("frozen listener receives", Duration::from_secs(20), || {
-        recent(&frozen_p) > 20
-    });
+    wait_until(
+        "frozen listener receives",
+        Duration::from_secs(20),
+        POLL,
+        || recent(&frozen_p) > 20,
+    );
     frozen_p.signal("STOP");
 
     master.kill();
     // a node that dies while the master is down is dropped on restart
     doomed_p.kill();
     // nodes keep talking while the master is down
-    wait_for(
+    wait_until(
         "plain listener without master",
         Duration::from_secs(10),
+        POLL,
         || recent(&lp) > 20,
     );
     let _master2 = start_master(&env, port, &db, &adapt);
@@ -105,16 +111,22 @@ fn kill_and_restart_keeps_graph_params_and_connections() {
     assert_eq!(env.run("rosparam", &["get", "/persist/me"]).trim(), "7");
 
     // the adapted subscriber is re-pointed at the restarted adaptor
-    wait_for("adapted listener back", Duration::from_secs(20), || {
-        recent(&la) > 5
-    });
+    wait_until(
+        "adapted listener back",
+        Duration::from_secs(20),
+        POLL,
+        || recent(&la) > 5,
+    );
     let ra = measure_rate(&la, 3.0);
     assert!((8.5..=11.5).contains(&ra), "adapted after restart: {ra}");
     // the frozen listener, thawed, is still in the graph and receiving
     frozen_p.signal("CONT");
-    wait_for("thawed listener receives", Duration::from_secs(20), || {
-        recent(&frozen_p) > 20
-    });
+    wait_until(
+        "thawed listener receives",
+        Duration::from_secs(20),
+        POLL,
+        || recent(&frozen_p) > 20,
+    );
     // Past the backlog of its socket: still connected, at the talker's rate.
     let rf = measure_rate(&frozen_p, 3.0);
     assert!(rf >= 20.0, "thawed listener at {rf} Hz of 30");
@@ -122,7 +134,10 @@ fn kill_and_restart_keeps_graph_params_and_connections() {
     assert!(info.contains(&frozen), "{info}");
     // a new subscriber still connects to the old publisher
     let newcomer = env.script("listener.py", &[&unique("newcomer"), &topic]);
-    wait_for("new subscriber receives", Duration::from_secs(20), || {
-        recent(&newcomer) > 20
-    });
+    wait_until(
+        "new subscriber receives",
+        Duration::from_secs(20),
+        POLL,
+        || recent(&newcomer) > 20,
+    );
 }

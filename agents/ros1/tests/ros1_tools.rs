@@ -10,6 +10,7 @@ use common::*;
 use configbot_api::policy::PolicyConfig;
 use configbot_dataplane::{AdaptorSetting, DataPlane, EdgeId, GraphEvent};
 use configbot_ros1::{Placement, Ros1Config, Ros1DataPlane, placement_from_apps};
+use configbot_test_support::{free_port, skip, wait_until};
 
 struct Agent {
     dp: Ros1DataPlane,
@@ -81,13 +82,14 @@ fn params_topics_launch_and_graph_with_real_tools() {
     // subscribeParam + paramUpdate callbacks (rospy.get_param_cached)
     env.run("rosparam", &["set", "/watched/level", "1"]);
     let watcher = env.script("param_watcher.py", &[&unique("watcher"), "/watched/level"]);
-    wait_for("cached param read", Duration::from_secs(20), || {
+    wait_until("cached param read", Duration::from_secs(20), POLL, || {
         watcher.has_line("value 1")
     });
     env.run("rosparam", &["set", "/watched/level", "2"]);
-    wait_for(
+    wait_until(
         "paramUpdate pushed to the node",
         Duration::from_secs(10),
+        POLL,
         || watcher.has_line("value 2"),
     );
 
@@ -101,7 +103,7 @@ fn params_topics_launch_and_graph_with_real_tools() {
             &format!("topic:={topic}"),
         ],
     );
-    wait_for("roslaunch params", Duration::from_secs(20), || {
+    wait_until("roslaunch params", Duration::from_secs(20), POLL, || {
         env.command("rosparam")
             .args(["get", "/configbot_test/gains/p"])
             .output()
@@ -111,13 +113,14 @@ fn params_topics_launch_and_graph_with_real_tools() {
         env.run("rosparam", &["get", "/configbot_test/name"]).trim(),
         "robot one"
     );
-    wait_for(
+    wait_until(
         "launched talker registered",
         Duration::from_secs(20),
+        POLL,
         || a.dp.graph().nodes.contains_key("/launched_talker"),
     );
     a.dp.wake();
-    wait_for("launched talker pid", Duration::from_secs(10), || {
+    wait_until("launched talker pid", Duration::from_secs(10), POLL, || {
         launched_guard.0 =
             a.dp.graph()
                 .nodes
@@ -143,7 +146,7 @@ fn params_topics_launch_and_graph_with_real_tools() {
     );
     let lname = unique("listener");
     let listener = env.script("listener.py", &[&lname, &chatter]);
-    wait_for("listener receives", Duration::from_secs(20), || {
+    wait_until("listener receives", Duration::from_secs(20), POLL, || {
         listener.count_between(Instant::now() - Duration::from_secs(60), Instant::now()) > 5
     });
     let lnode = format!("/{lname}");
@@ -174,7 +177,7 @@ fn params_topics_launch_and_graph_with_real_tools() {
     );
 
     a.dp.wake();
-    wait_for("pids in graph", Duration::from_secs(10), || {
+    wait_until("pids in graph", Duration::from_secs(10), POLL, || {
         let g = a.dp.graph();
         g.nodes.get(&pub_name).and_then(|n| n.pid) == Some(talker.pid())
             && g.nodes.get(&lnode).and_then(|n| n.pid) == Some(listener.pid())
@@ -201,7 +204,7 @@ fn params_topics_launch_and_graph_with_real_tools() {
     assert!(saw_edge, "no EdgeAdded event for {chatter}");
 
     // topic metrics on raw TCPROS
-    wait_for("topic stats", Duration::from_secs(15), || {
+    wait_until("topic stats", Duration::from_secs(15), POLL, || {
         a.dp.topic_stats(&chatter)
             .unwrap()
             .is_some_and(|s| s.samples > 60)
@@ -251,9 +254,12 @@ fn adaptor_limits_one_subscriber_and_changes_rate_live() {
     let lf = env.script("listener.py", &[&fast, &topic]);
     let recent =
         |p: &Proc| p.count_between(Instant::now() - Duration::from_secs(2), Instant::now());
-    wait_for("both listeners receive", Duration::from_secs(20), || {
-        recent(&ls) > 10 && recent(&lf) > 10
-    });
+    wait_until(
+        "both listeners receive",
+        Duration::from_secs(20),
+        POLL,
+        || recent(&ls) > 10 && recent(&lf) > 10,
+    );
 
     let (rs, rf) = std::thread::scope(|s| {
         let a = s.spawn(|| measure_rate(&ls, 5.0));
@@ -335,9 +341,10 @@ fn adaptor_limits_one_subscriber_and_changes_rate_live() {
             .map(|o| String::from_utf8_lossy(&o.stdout).into_owned())
             .unwrap_or_default()
     };
-    wait_for(
+    wait_until(
         "subscriber off the adaptor, on the publisher",
         Duration::from_secs(15),
+        POLL,
         || {
             let info = slow_info();
             info.contains(&topic) && !info.contains(a.dp.adaptor_uri())
@@ -366,16 +373,17 @@ fn adaptor_handles_latched_topics_and_publishers_coming_and_going() {
         .unwrap();
     let tname = unique("latcher");
     let _latcher = env.script("talker.py", &[&tname, &topic, "1", "--latch"]);
-    wait_for("latcher registered", Duration::from_secs(20), || {
+    wait_until("latcher registered", Duration::from_secs(20), POLL, || {
         a.dp.graph()
             .topics
             .get(&topic)
             .is_some_and(|t| !t.publishers.is_empty())
     });
     let l = env.script("listener.py", &[&lname, &topic]);
-    wait_for(
+    wait_until(
         "latched message through the adaptor",
         Duration::from_secs(20),
+        POLL,
         || l.has_line("msg 13"),
     );
 
@@ -384,9 +392,10 @@ fn adaptor_handles_latched_topics_and_publishers_coming_and_going() {
     let mut t2 = env.script("talker.py", &[&t2name, &topic, "10"]);
     let recent =
         |p: &Proc| p.count_between(Instant::now() - Duration::from_secs(3), Instant::now());
-    wait_for(
+    wait_until(
         "messages of the new publisher",
         Duration::from_secs(20),
+        POLL,
         || recent(&l) >= 4,
     );
     // and goes away: the listener stays connected and nothing breaks
@@ -394,9 +403,10 @@ fn adaptor_handles_latched_topics_and_publishers_coming_and_going() {
     let t3name = unique("talker3");
     let _t3 = env.script("talker.py", &[&t3name, &topic, "10"]);
     let from = Instant::now();
-    wait_for(
+    wait_until(
         "messages after publisher churn",
         Duration::from_secs(20),
+        POLL,
         || l.count_between(from, Instant::now()) >= 3,
     );
     assert!(a.dp.adaptor_counters()[&edge].forwarded >= 5);
@@ -406,15 +416,19 @@ fn adaptor_handles_latched_topics_and_publishers_coming_and_going() {
     let mut l = l;
     l.kill();
     let l2 = env.script("listener.py", &[&lname, &topic]);
-    wait_for(
+    wait_until(
         "latched message after reconnect",
         Duration::from_secs(20),
+        POLL,
         || l2.has_line("msg 13"),
     );
     let from = Instant::now();
-    wait_for("stream after reconnect", Duration::from_secs(20), || {
-        l2.count_between(from, Instant::now()) >= 3
-    });
+    wait_until(
+        "stream after reconnect",
+        Duration::from_secs(20),
+        POLL,
+        || l2.count_between(from, Instant::now()) >= 3,
+    );
     let r = measure_rate(&l2, 4.0);
     assert!(
         (1.0..=3.0).contains(&r),
@@ -432,7 +446,7 @@ fn roscpp_relay_gets_live_adaptor_insertion_and_removal() {
         return;
     }
     if !std::path::Path::new(RELAY).exists() {
-        common::skip(&format!("{RELAY} not found; install topic-tools"));
+        skip(&format!("{RELAY} not found; install topic-tools"));
         return;
     }
     let a = start_agent(Duration::from_secs(30));
@@ -449,9 +463,12 @@ fn roscpp_relay_gets_live_adaptor_insertion_and_removal() {
     let l = env.script("listener.py", &[&unique("relay_listener"), &output]);
     let last_sec =
         |p: &Proc| p.count_between(Instant::now() - Duration::from_secs(1), Instant::now());
-    wait_for("30 Hz through the relay", Duration::from_secs(20), || {
-        (27..=33).contains(&last_sec(&l))
-    });
+    wait_until(
+        "30 Hz through the relay",
+        Duration::from_secs(20),
+        POLL,
+        || (27..=33).contains(&last_sec(&l)),
+    );
 
     let edge = EdgeId {
         topic: input.clone(),
@@ -465,9 +482,10 @@ fn roscpp_relay_gets_live_adaptor_insertion_and_removal() {
         },
     )
     .unwrap();
-    wait_for(
+    wait_until(
         "relay moved onto the adaptor",
         Duration::from_secs(10),
+        POLL,
         || (8..=12).contains(&last_sec(&l)),
     );
     eprintln!("live insertion took effect within {:?}", t0.elapsed());
@@ -479,9 +497,10 @@ fn roscpp_relay_gets_live_adaptor_insertion_and_removal() {
     );
 
     a.dp.remove_adaptor(&edge).unwrap();
-    wait_for(
+    wait_until(
         "relay back on the publisher",
         Duration::from_secs(10),
+        POLL,
         || (27..=33).contains(&last_sec(&l)),
     );
     let r = measure_rate(&l, 3.0);
@@ -503,14 +522,15 @@ fn periodic_refresh_notices_dead_nodes() {
     let name = unique("mortal");
     let node = format!("/{name}");
     let mut p = a.env.script("listener.py", &[&name, "/mortal_topic"]);
-    wait_for("pid known", Duration::from_secs(20), || {
+    wait_until("pid known", Duration::from_secs(20), POLL, || {
         a.dp.graph().nodes.get(&node).and_then(|n| n.pid) == Some(p.pid())
     });
     let mut events = a.dp.subscribe_events();
     p.kill();
-    wait_for(
+    wait_until(
         "pid dropped by the refresh",
         Duration::from_secs(10),
+        POLL,
         || {
             a.dp.graph()
                 .nodes
@@ -518,16 +538,16 @@ fn periodic_refresh_notices_dead_nodes() {
                 .is_some_and(|n| n.pid.is_none())
         },
     );
-    let mut saw = false;
-    let end = Instant::now() + Duration::from_secs(5);
-    while !saw && Instant::now() < end {
-        match events.try_recv() {
-            Ok(GraphEvent::NodeChanged(n)) => saw |= n.name == node && n.pid.is_none(),
-            Ok(_) => {}
-            Err(_) => std::thread::sleep(Duration::from_millis(50)),
-        }
-    }
-    assert!(saw, "no NodeChanged event for {node}");
+    wait_until(
+        &format!("a NodeChanged event for {node} without a pid"),
+        Duration::from_secs(5),
+        POLL,
+        || {
+            std::iter::from_fn(|| events.try_recv().ok()).any(
+                |ev| matches!(ev, GraphEvent::NodeChanged(n) if n.name == node && n.pid.is_none()),
+            )
+        },
+    );
 }
 
 /// With the app mapping injected, a non-core subscriber gets a pass-through
@@ -557,7 +577,7 @@ fn placement_adapts_non_core_subscribers_at_subscribe_time() {
     let ln = a.env.script("listener.py", &[&nav, &topic]);
     let last_sec =
         |p: &Proc| p.count_between(Instant::now() - Duration::from_secs(1), Instant::now());
-    wait_for("both at 30 Hz", Duration::from_secs(20), || {
+    wait_until("both at 30 Hz", Duration::from_secs(20), POLL, || {
         (27..=33).contains(&last_sec(&ld)) && (27..=33).contains(&last_sec(&ln))
     });
     let det_edge = EdgeId {
@@ -579,7 +599,7 @@ fn placement_adapts_non_core_subscribers_at_subscribe_time() {
     );
     a.dp.set_adaptor(&det_edge, AdaptorSetting { rate_hz: Some(7.0) })
         .unwrap();
-    wait_for("detector limited", Duration::from_secs(5), || {
+    wait_until("detector limited", Duration::from_secs(5), POLL, || {
         (5..=9).contains(&last_sec(&ld))
     });
     let (rd, rn) = std::thread::scope(|s| {

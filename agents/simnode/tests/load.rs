@@ -7,14 +7,17 @@
 
 mod common;
 
-use std::path::PathBuf;
+use std::path::Path;
 use std::time::{Duration, Instant};
 
 use common::*;
+use configbot_test_support::{CpuCgroup, skip, wait_until};
 
 fn wait_more(p: &Proc, n: usize, what: &str) {
     let base = p.msg_count();
-    wait_for(what, Duration::from_secs(30), || p.msg_count() >= base + n);
+    wait_until(what, Duration::from_secs(30), POLL, || {
+        p.msg_count() >= base + n
+    });
 }
 
 #[test]
@@ -29,7 +32,7 @@ fn heavy_callback_starves_a_core_callback_sharing_one_worker() {
     let (p1, p2) = (format!("{core_in}:50:64"), format!("{heavy_in}:10:64"));
     let _src = env.simnode(&["--name", &t("sensors"), "--publish", &p1, "--publish", &p2]);
     let listener = env.script("listen.py", &[&unique("listener"), &core_out]);
-    wait_for("the listener", Duration::from_secs(20), || {
+    wait_until("the listener", Duration::from_secs(20), POLL, || {
         listener.has_line("ready")
     });
     let core = format!("{core_in}->{core_out}:cost-ms=2");
@@ -109,33 +112,17 @@ fn costs_are_real_cpu_time() {
     );
 }
 
-/// A cgroup v1 `cpu` group, removed on drop (after its processes died).
-struct Cgroup(PathBuf);
-
-impl Cgroup {
-    fn create(quota_us: u64) -> Option<Cgroup> {
-        let root = PathBuf::from("/sys/fs/cgroup/cpu");
-        let p = root.join(unique("configbot-simnode-test"));
-        std::fs::create_dir(&p).ok()?;
-        let g = Cgroup(p);
-        std::fs::write(g.0.join("cpu.cfs_period_us"), "100000").ok()?;
-        std::fs::write(g.0.join("cpu.cfs_quota_us"), quota_us.to_string()).ok()?;
-        Some(g)
-    }
-    fn add(&self, pid: u32) {
-        std::fs::write(self.0.join("cgroup.procs"), pid.to_string()).unwrap();
-    }
-}
-
-impl Drop for Cgroup {
-    fn drop(&mut self) {
-        for _ in 0..50 {
-            if std::fs::remove_dir(&self.0).is_ok() {
-                return;
-            }
-            std::thread::sleep(Duration::from_millis(100));
-        }
-    }
+/// A cgroup v1 `cpu` group with a CPU limit of `quota_us` per 100 ms,
+/// removed on drop (after its processes died).
+fn limited_cgroup(quota_us: u64) -> Option<CpuCgroup> {
+    let cg = CpuCgroup::create(
+        Path::new("/sys/fs/cgroup/cpu"),
+        &unique("configbot-simnode-test"),
+    )
+    .ok()?;
+    cg.set("cpu.cfs_period_us", 100_000).ok()?;
+    cg.set("cpu.cfs_quota_us", quota_us).ok()?;
+    Some(cg)
 }
 
 /// A thread-per-message detector (image → detections, 40 ms of CPU a frame)
@@ -149,7 +136,7 @@ struct LimitedDetector {
     /// The detector's threads once the listener was ready, before any frame.
     idle_threads: usize,
     _master: Master,
-    cg: Cgroup,
+    cg: CpuCgroup,
 }
 
 /// Starts a [`LimitedDetector`] with `extra` simnode flags; with
@@ -160,7 +147,7 @@ fn detector_under_limit(extra: &[&str], limited_from_start: bool) -> Option<Limi
     if !ros_available() {
         return None;
     }
-    let Some(cg) = Cgroup::create(20_000) else {
+    let Some(cg) = limited_cgroup(20_000) else {
         skip("cannot create a cgroup under /sys/fs/cgroup/cpu (needs root, cgroup v1 cpu)");
         return None;
     };
@@ -174,10 +161,10 @@ fn detector_under_limit(extra: &[&str], limited_from_start: bool) -> Option<Limi
     args.extend_from_slice(&["--on", &on]);
     let detector = env.simnode(&args);
     if limited_from_start {
-        cg.add(detector.pid());
+        cg.add(detector.pid()).unwrap();
     }
     let listener = env.script("listen.py", &[&unique("listener"), &det]);
-    wait_for("the listener", Duration::from_secs(20), || {
+    wait_until("the listener", Duration::from_secs(20), POLL, || {
         listener.has_line("ready")
     });
     let idle_threads = threads(detector.pid());
@@ -212,7 +199,7 @@ fn thread_per_message_threads_pile_up_under_a_cpu_limit() {
     let free = listener.msgs_between(from, Instant::now());
 
     // 0.2 CPU: 10 threads (the cap) share it, each message takes seconds.
-    d.cg.add(pid);
+    d.cg.add(pid).unwrap();
     std::thread::sleep(Duration::from_secs(2));
     let mut peak_limited = 0;
     let from = Instant::now();

@@ -9,10 +9,11 @@ mod common;
 use std::time::Duration;
 
 use common::*;
+use configbot_test_support::wait_until;
 
 /// Waits until `listener` has printed `n` messages.
 fn wait_msgs(p: &Proc, n: usize, what: &str) {
-    wait_for(what, Duration::from_secs(30), || p.msg_count() >= n);
+    wait_until(what, Duration::from_secs(30), POLL, || p.msg_count() >= n);
 }
 
 /// Parses the last "average rate: X" of `rostopic hz` output.
@@ -25,9 +26,10 @@ fn hz_of(out: &str) -> Option<f64> {
 
 /// Waits until `node` is in `rosnode list`.
 fn wait_registered(env: &RosEnv, node: &str) {
-    wait_for(
+    wait_until(
         "the simnode in rosnode list",
         Duration::from_secs(20),
+        POLL,
         || env.node_list().iter().any(|n| n == node),
     );
 }
@@ -39,9 +41,10 @@ fn exits_and_unregisters(env: &RosEnv, sim: &mut Proc, node: &str, sig: &str) {
         sim.signal_and_wait(sig, Duration::from_secs(5)),
         "no prompt exit"
     );
-    wait_for(
+    wait_until(
         "the simnode to leave rosnode list",
         Duration::from_secs(10),
+        POLL,
         || !env.node_list().iter().any(|n| n == node),
     );
 }
@@ -147,7 +150,7 @@ fn rospy_feeds_a_callback(kind: MasterKind) {
     let mut sim = env.simnode(&["--name", &node, "--on", &on]);
     wait_registered(env, &node);
     let listener = env.script("listen.py", &[&unique("listener"), &output]);
-    wait_for("the listener", Duration::from_secs(20), || {
+    wait_until("the listener", Duration::from_secs(20), POLL, || {
         listener.has_line("ready")
     });
     let _talker = env.script("talk.py", &[&unique("talker"), &input, "20", "300"]);

@@ -21,6 +21,8 @@ use std::sync::{Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 
 use configbot_cgroups::{CgroupBackend, Layout, SubtreeRoot, V1Backend};
+use configbot_test_support::cgroup::{remove_subtree, remove_tree};
+use configbot_test_support::{CpuCgroup, free_port, try_wait_until};
 use serde_json::Value;
 
 /// The `configbot` program built for these tests.
@@ -54,24 +56,7 @@ pub fn now_ms() -> u64 {
 
 /// `configbot-e2e-<pid>-<n>`: unique per test, parsed back by the leftover check.
 pub fn unique_root() -> String {
-    format!(
-        "configbot-e2e-{}-{}",
-        std::process::id(),
-        COUNTER.fetch_add(1, Ordering::Relaxed)
-    )
-}
-
-/// A free TCP port on localhost (never ROS's 11311).
-pub fn free_port() -> u16 {
-    loop {
-        let port = std::net::TcpListener::bind("127.0.0.1:0")
-            .and_then(|l| l.local_addr())
-            .map(|a| a.port())
-            .unwrap_or(0);
-        if port != 0 && port != 11311 {
-            return port;
-        }
-    }
+    configbot_test_support::unique("configbot-e2e", '-')
 }
 
 /// The process-wide lock a [`Robot`] holds, for scenarios that start their
@@ -82,6 +67,10 @@ pub fn serial() -> MutexGuard<'static, ()> {
 
 /// A private ConfigBot with its embedded agent.
 pub struct Robot {
+    /// The cpu cgroup of the server and of the test process while the robot
+    /// lives (see [`Robot::prioritise`]); first, so that on drop it is
+    /// removed right after `Drop::drop` killed the processes.
+    ctl: Option<CpuCgroup>,
     pub dir: tempfile::TempDir,
     pub root: String,
     pub ros_port: u16,
@@ -90,8 +79,6 @@ pub struct Robot {
     /// server drives over `--agent-socket`; `None`: the agent is embedded.
     agent: Option<Child>,
     split: bool,
-    /// The cpu cgroup the test process came from (see [`Robot::prioritise`]).
-    home: Option<PathBuf>,
     /// Released after `Drop::drop` cleaned up (fields drop after it).
     _serial: MutexGuard<'static, ()>,
 }
@@ -99,18 +86,7 @@ pub struct Robot {
 impl Robot {
     /// Starts `configbot serve --agent` and waits for its API socket.
     pub fn start() -> Robot {
-        let serial = serial();
-        let mut r = Robot {
-            dir: tempfile::tempdir().expect("temp dir"),
-            root: unique_root(),
-            ros_port: free_port(),
-            server: None,
-            agent: None,
-            split: false,
-            home: None,
-            _serial: serial,
-        };
-        r.prioritise();
+        let mut r = Robot::new(false);
         r.spawn_server();
         r
     }
@@ -118,20 +94,26 @@ impl Robot {
     /// Starts the node agent alone (`configbot agent`), then `configbot serve
     /// --agent-socket` driving it: two processes that can be killed apart.
     pub fn start_split() -> Robot {
+        let mut r = Robot::new(true);
+        r.spawn_agent();
+        r.spawn_server();
+        r
+    }
+
+    /// A robot with nothing running yet, the test process in its ctl cgroup.
+    fn new(split: bool) -> Robot {
         let serial = serial();
         let mut r = Robot {
+            ctl: None,
             dir: tempfile::tempdir().expect("temp dir"),
             root: unique_root(),
             ros_port: free_port(),
             server: None,
             agent: None,
-            split: true,
-            home: None,
+            split,
             _serial: serial,
         };
         r.prioritise();
-        r.spawn_agent();
-        r.spawn_server();
         r
     }
 
@@ -204,9 +186,8 @@ impl Robot {
 
     /// Moves a process into `<root>-ctl` (see [`Robot::prioritise`]).
     fn move_to_ctl(&self, child: &Child) {
-        if let Some(cpu) = Layout::detect().ok().and_then(|l| l.v1_cpu) {
-            let procs = self.ctl_cgroup(&cpu).join("cgroup.procs");
-            std::fs::write(procs, child.id().to_string()).expect("move to the ctl cgroup");
+        if let Some(ctl) = &self.ctl {
+            ctl.add(child.id()).expect("move to the ctl cgroup");
         }
     }
 
@@ -218,23 +199,22 @@ impl Robot {
         what: &str,
         status: impl Fn(&mut Robot) -> Option<std::io::Result<Option<std::process::ExitStatus>>>,
     ) {
-        let deadline = Instant::now() + Duration::from_secs(30);
-        while std::os::unix::net::UnixStream::connect(sock).is_err() {
-            if let Some(Ok(Some(st))) = status(self) {
-                panic!(
-                    "{what} exited ({st}):\n{}{}",
-                    self.server_log(),
-                    self.agent_log()
-                );
-            }
-            assert!(
-                Instant::now() < deadline,
-                "{what} did not come up within 30 s:\n{}{}",
-                self.server_log(),
-                self.agent_log()
-            );
-            std::thread::sleep(Duration::from_millis(20));
-        }
+        let up = try_wait_until(
+            &format!("{what} to come up"),
+            Duration::from_secs(30),
+            Duration::from_millis(20),
+            || {
+                if let Some(Ok(Some(st))) = status(self) {
+                    panic!(
+                        "{what} exited ({st}):\n{}{}",
+                        self.server_log(),
+                        self.agent_log()
+                    );
+                }
+                std::os::unix::net::UnixStream::connect(sock).is_ok()
+            },
+        );
+        up.unwrap_or_else(|e| panic!("{e}:\n{}{}", self.server_log(), self.agent_log()));
     }
 
     pub fn socket(&self) -> PathBuf {
@@ -255,16 +235,12 @@ impl Robot {
         let Some(cpu) = Layout::detect().ok().and_then(|l| l.v1_cpu) else {
             return;
         };
-        let dir = self.ctl_cgroup(&cpu);
-        std::fs::create_dir_all(&dir).expect("create a cpu cgroup");
-        std::fs::write(dir.join("cpu.shares"), ROBOT_SHARES.to_string()).expect("set cpu.shares");
-        self.home = own_cpu_cgroup(&cpu);
-        std::fs::write(dir.join("cgroup.procs"), std::process::id().to_string())
-            .expect("move the test into the ctl cgroup");
-    }
-
-    fn ctl_cgroup(&self, cpu: &Path) -> PathBuf {
-        cpu.join(format!("{}-ctl", self.root))
+        let ctl =
+            CpuCgroup::create(&cpu, &format!("{}-ctl", self.root)).expect("create a cpu cgroup");
+        // Kept at once: dropped, it is removed again.
+        let ctl = self.ctl.insert(ctl);
+        ctl.set("cpu.shares", ROBOT_SHARES).expect("set cpu.shares");
+        ctl.join(&cpu).expect("move the test into the ctl cgroup");
     }
 
     fn spawn_server(&mut self) {
@@ -365,25 +341,25 @@ impl Robot {
         what: &str,
         cond: impl Fn(&Value) -> bool,
     ) -> Value {
-        let deadline = Instant::now() + timeout;
-        loop {
-            let obj = self.get(kind, name);
-            if let Some(o) = &obj
-                && cond(o)
-            {
-                return o.clone();
-            }
-            if Instant::now() > deadline {
-                panic!(
-                    "timed out after {timeout:?} waiting for {kind}/{name}: {what}\nlast: {}\nserver log:\n{}\nevents:\n{}",
-                    obj.map(|o| serde_json::to_string_pretty(&o).unwrap_or_default())
-                        .unwrap_or_else(|| "(none)".into()),
-                    self.server_log(),
-                    self.event_log(name)
-                );
-            }
-            std::thread::sleep(Duration::from_millis(250));
-        }
+        let mut last = None;
+        let waited = try_wait_until(
+            &format!("{kind}/{name}: {what}"),
+            timeout,
+            Duration::from_millis(250),
+            || {
+                last = self.get(kind, name);
+                last.clone().filter(|o| cond(o))
+            },
+        );
+        waited.unwrap_or_else(|e| {
+            panic!(
+                "{e}\nlast: {}\nserver log:\n{}\nevents:\n{}",
+                last.map(|o| serde_json::to_string_pretty(&o).unwrap_or_default())
+                    .unwrap_or_else(|| "(none)".into()),
+                self.server_log(),
+                self.event_log(name)
+            )
+        })
     }
 
     /// Events about object `name` (oldest first), from the API.
@@ -436,20 +412,22 @@ impl Robot {
         timeout: Duration,
         cond: impl Fn(&Value) -> bool,
     ) -> (Value, u64) {
-        let deadline = Instant::now() + timeout;
-        loop {
-            if let Some(e) = self.events_with(name, reason).into_iter().find(|e| cond(e)) {
-                return (e, now_ms());
-            }
-            if Instant::now() > deadline {
-                panic!(
-                    "timed out after {timeout:?} waiting for event {reason} on {name}\nevents: {}\nserver log:\n{}",
-                    self.event_log(name),
-                    self.server_log()
-                );
-            }
-            std::thread::sleep(Duration::from_millis(20));
-        }
+        let waited = try_wait_until(
+            &format!("event {reason} on {name}"),
+            timeout,
+            Duration::from_millis(20),
+            || {
+                let e = self.events_with(name, reason).into_iter().find(|e| cond(e));
+                e.map(|e| (e, now_ms()))
+            },
+        );
+        waited.unwrap_or_else(|e| {
+            panic!(
+                "{e}\nevents: {}\nserver log:\n{}",
+                self.event_log(name),
+                self.server_log()
+            )
+        })
     }
 
     /// The events about `name` as text lines (for failure messages).
@@ -491,22 +469,8 @@ impl Drop for Robot {
             let _ = c.wait();
         }
         nuke(&self.root);
-        if let Some(home) = &self.home {
-            let _ = std::fs::write(home.join("cgroup.procs"), std::process::id().to_string());
-        }
-        if let Some(cpu) = Layout::detect().ok().and_then(|l| l.v1_cpu) {
-            let ctl = self.ctl_cgroup(&cpu);
-            let deadline = Instant::now() + Duration::from_secs(10);
-            while ctl.exists() && std::fs::remove_dir(&ctl).is_err() && Instant::now() < deadline {
-                let procs = std::fs::read_to_string(ctl.join("cgroup.procs")).unwrap_or_default();
-                for p in procs.lines().filter_map(|l| l.trim().parse().ok()) {
-                    if p != std::process::id() {
-                        kill9(p);
-                    }
-                }
-                std::thread::sleep(Duration::from_millis(20));
-            }
-        }
+        // Then `ctl` drops: the test process goes back to its own cgroup,
+        // whatever else is left in `<root>-ctl` is killed, and it goes.
     }
 }
 
@@ -518,19 +482,6 @@ pub fn example(name: &str) -> String {
         "command: configbot\n",
         &format!("command: {}\n", configbot_bin().display()),
     )
-}
-
-/// This process's cgroup in the v1 `cpu` hierarchy mounted at `cpu`.
-fn own_cpu_cgroup(cpu: &Path) -> Option<PathBuf> {
-    let text = std::fs::read_to_string("/proc/self/cgroup").ok()?;
-    text.lines().find_map(|l| {
-        let mut parts = l.splitn(3, ':');
-        let (_, controllers, path) = (parts.next()?, parts.next()?, parts.next()?);
-        controllers
-            .split(',')
-            .any(|c| c == "cpu")
-            .then(|| cpu.join(path.trim_start_matches('/')))
-    })
 }
 
 fn v1_backend(root: &str) -> Option<V1Backend> {
@@ -560,33 +511,20 @@ pub fn cgroup_dirs(root: &str) -> Vec<PathBuf> {
 pub fn kill_and_remove(child: &mut Child, root: &str) {
     let _ = child.kill();
     let _ = child.wait();
-    nuke(root);
-    for dir in cgroup_dirs(root) {
-        let _ = std::fs::remove_dir(dir);
+    if let Err(e) = remove_tree(&cgroup_dirs(root), Duration::from_secs(10)) {
+        eprintln!("e2e: {e}");
     }
 }
 
-/// Kills every process in every node cgroup below `root`, then removes them.
+/// Kills every process in the subtree `root` (its node cgroups in the v1
+/// cpu and cpuacct hierarchies), then removes its cgroups; says so when
+/// that fails within 10 s.
 pub fn nuke(root: &str) {
-    let Some(b) = v1_backend(root) else { return };
-    for n in b.nodes().unwrap_or_default() {
-        let deadline = Instant::now() + Duration::from_secs(10);
-        loop {
-            let pids = b.pids(&n).unwrap_or_default();
-            if pids.is_empty() && b.remove(&n).is_ok() {
-                break;
-            }
-            for p in pids {
-                kill9(p);
-            }
-            if Instant::now() > deadline {
-                eprintln!("e2e: cannot empty the cgroup of {n}");
-                break;
-            }
-            std::thread::sleep(Duration::from_millis(20));
-        }
+    let Ok(l) = Layout::detect() else { return };
+    let mounts = [l.v1_cpu, l.v1_cpuacct].into_iter().flatten();
+    if let Err(e) = remove_subtree(mounts, root, Duration::from_secs(10)) {
+        eprintln!("e2e: {e}");
     }
-    let _ = b.remove_root();
 }
 
 /// `GET path` over the Unix socket `sock`; the JSON body of a 200 answer.
@@ -705,30 +643,6 @@ pub fn rfc3339_secs(t: &str) -> Option<u64> {
     u64::try_from(days * 86_400 + h[0] * 3600 + h[1] * 60 + h[2]).ok()
 }
 
-/// Says why a test cannot run on this machine and lets it pass, unless
-/// `CI=true` or `CONFIGBOT_REQUIRE=1` is set: then a missing prerequisite
-/// fails the test instead of skipping it silently.
-pub fn skip(why: &str) {
-    let required = std::env::var("CI").is_ok_and(|v| v == "true")
-        || std::env::var("CONFIGBOT_REQUIRE").is_ok_and(|v| v == "1");
-    assert!(
-        !required,
-        "cannot run: {why} (CI=true or CONFIGBOT_REQUIRE=1 makes a skip a failure)"
-    );
-    eprintln!("SKIPPED: {why}");
-}
-
-fn kill9(pid: u32) {
-    let Ok(pid) = libc::pid_t::try_from(pid) else {
-        return;
-    };
-    #[allow(unsafe_code)]
-    // SAFETY: kill(2) with a pid read from the test's own cgroup and a valid signal.
-    unsafe {
-        libc::kill(pid, libc::SIGKILL);
-    }
-}
-
 /// How a node of a test stack runs.
 pub enum NodeRun {
     /// `configbot simnode ARGS` started by the agent.
@@ -813,15 +727,13 @@ impl Robot {
     /// Waits until every named node has a process in its cgroup.
     pub fn wait_nodes(&self, nodes: &[&str]) {
         let started = Instant::now();
-        let deadline = started + Duration::from_secs(30);
-        while !nodes.iter().all(|n| !node_pids(&self.root, n).is_empty()) {
-            assert!(
-                Instant::now() < deadline,
-                "nodes {nodes:?} did not start\n{}",
-                self.server_log()
-            );
-            std::thread::sleep(Duration::from_millis(100));
-        }
+        let up = try_wait_until(
+            &format!("nodes {nodes:?} to start"),
+            Duration::from_secs(30),
+            Duration::from_millis(100),
+            || nodes.iter().all(|n| !node_pids(&self.root, n).is_empty()),
+        );
+        up.unwrap_or_else(|e| panic!("{e}\n{}", self.server_log()));
         if started.elapsed() > Duration::from_secs(10) {
             eprintln!("e2e: slow node start: {:?}", started.elapsed());
         }

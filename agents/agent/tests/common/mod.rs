@@ -1,40 +1,26 @@
 //! Shared test helpers: unique cgroup subtrees, a guard that kills every
-//! process in them and removes them on drop, event waiting, raw HTTP, and
-//! [`skip`] (a failure under CI).
+//! process in them and removes them on drop, event waiting and raw HTTP.
+//! Condition waits and skips (a failure under CI) come from
+//! `configbot_test_support`.
 #![allow(dead_code)]
 
 pub mod rt;
 
 use std::io::{Read, Write};
 use std::path::PathBuf;
-use std::sync::atomic::{AtomicU32, Ordering};
 use std::time::{Duration, Instant};
 
-use configbot_agent::{Agent, AgentEvent, AgentSettings, ConfigUpdate, StackSpec};
+use configbot_agent::{Agent, AgentSettings, ConfigUpdate, StackSpec};
 use configbot_cgroups::{CgroupBackend, CpuLimit, Layout, NodeName, SubtreeRoot, V1Backend};
+use configbot_test_support::cgroup::remove_subtree;
+use configbot_test_support::wait_until_async;
 
-/// Says why a test cannot run on this machine and lets it pass, unless
-/// `CI=true` or `CONFIGBOT_REQUIRE=1` is set: then a missing prerequisite
-/// fails the test instead of skipping it silently.
-pub fn skip(why: &str) {
-    let required = std::env::var("CI").is_ok_and(|v| v == "true")
-        || std::env::var("CONFIGBOT_REQUIRE").is_ok_and(|v| v == "1");
-    assert!(
-        !required,
-        "cannot run: {why} (CI=true or CONFIGBOT_REQUIRE=1 makes a skip a failure)"
-    );
-    eprintln!("SKIPPED: {why}");
-}
-
-static COUNTER: AtomicU32 = AtomicU32::new(0);
+/// How often the tests' condition waits look.
+pub const POLL: Duration = Duration::from_millis(20);
 
 /// `configbot-agtest-<pid>-<n>`: the leftover check parses the pid back out.
 pub fn unique_root() -> String {
-    format!(
-        "configbot-agtest-{}-{}",
-        std::process::id(),
-        COUNTER.fetch_add(1, Ordering::Relaxed)
-    )
+    configbot_test_support::unique("configbot-agtest", '-')
 }
 
 pub fn v1_backend(root: &str) -> V1Backend {
@@ -46,24 +32,16 @@ pub fn v1_backend(root: &str) -> V1Backend {
     )
 }
 
-/// Kills every process in every node cgroup below `root`, then removes them.
+/// Kills every process in the subtree `root` (in the v1 cpu and cpuacct
+/// hierarchies), then removes its cgroups; panics after 10 s unless the
+/// test already fails.
 pub fn nuke(root: &str) {
-    let b = v1_backend(root);
-    for n in b.nodes().unwrap_or_default() {
-        let deadline = Instant::now() + Duration::from_secs(10);
-        loop {
-            let pids = b.pids(&n).unwrap_or_default();
-            if pids.is_empty() && b.remove(&n).is_ok() {
-                break;
-            }
-            for p in pids {
-                kill9(p);
-            }
-            assert!(Instant::now() < deadline, "cannot empty {n}");
-            std::thread::sleep(Duration::from_millis(20));
-        }
+    let l = Layout::detect().unwrap();
+    let mounts = [l.v1_cpu, l.v1_cpuacct].into_iter().flatten();
+    if let Err(e) = remove_subtree(mounts, root, Duration::from_secs(10)) {
+        assert!(std::thread::panicking(), "{e}");
+        eprintln!("{e}");
     }
-    let _ = b.remove_root();
 }
 
 /// Owns a test's subtree, temp dir, agent and extra children.
@@ -138,12 +116,14 @@ pub fn node(name: &str) -> NodeName {
     NodeName::new(name).unwrap()
 }
 
-/// Waits for an event that `pred` accepts.
-pub async fn wait_event(
-    rx: &mut tokio::sync::broadcast::Receiver<AgentEvent>,
+/// Waits up to `timeout` for an event that `pred` accepts (events missed
+/// by lagging behind are skipped); `None` on timeout. Panics when the
+/// channel closes.
+pub async fn try_wait_event<E: Clone>(
+    rx: &mut tokio::sync::broadcast::Receiver<E>,
     timeout: Duration,
-    mut pred: impl FnMut(&AgentEvent) -> bool,
-) -> AgentEvent {
+    mut pred: impl FnMut(&E) -> bool,
+) -> Option<E> {
     tokio::time::timeout(timeout, async {
         loop {
             match rx.recv().await {
@@ -154,21 +134,24 @@ pub async fn wait_event(
         }
     })
     .await
-    .expect("timed out waiting for event")
+    .ok()
 }
 
-/// Polls `cond` until true or the timeout.
-pub async fn wait_until(timeout: Duration, what: &str, mut cond: impl FnMut() -> bool) {
-    let deadline = Instant::now() + timeout;
-    while !cond() {
-        assert!(Instant::now() < deadline, "timed out waiting for {what}");
-        tokio::time::sleep(Duration::from_millis(20)).await;
-    }
+/// [`try_wait_event`] that panics on timeout naming `what`.
+pub async fn wait_event<E: Clone>(
+    rx: &mut tokio::sync::broadcast::Receiver<E>,
+    what: &str,
+    timeout: Duration,
+    pred: impl FnMut(&E) -> bool,
+) -> E {
+    try_wait_event(rx, timeout, pred)
+        .await
+        .unwrap_or_else(|| panic!("timed out after {timeout:?} waiting for {what}"))
 }
 
 /// Waits until node `n` of `agent` has a process in its cgroup.
 pub async fn wait_running(agent: &Agent, n: &NodeName, timeout: Duration, what: &str) {
-    wait_until(timeout, what, || {
+    wait_until_async(what, timeout, POLL, async || {
         !agent.backend().pids(n).unwrap().is_empty()
     })
     .await;
@@ -229,13 +212,4 @@ pub fn stack_json(json: &str) -> StackSpec {
 pub fn proc_state(pid: u32) -> Option<char> {
     let s = std::fs::read_to_string(format!("/proc/{pid}/stat")).ok()?;
     s.rsplit_once(')')?.1.trim_start().chars().next()
-}
-
-/// SIGKILL by pid (no `kill` binary needed).
-pub fn kill9(pid: u32) {
-    #[allow(unsafe_code)]
-    // SAFETY: kill(2) takes plain integers and touches no memory of ours.
-    unsafe {
-        libc::kill(pid as i32, libc::SIGKILL);
-    }
 }

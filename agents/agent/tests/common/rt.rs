@@ -1,6 +1,6 @@
 //! Helpers of the node-runtime tests: a guard that owns a runtime, its
 //! cgroup subtree, temp dir and outside processes (all cleaned up on drop,
-//! also on failure), ROS environment, free ports, timestamped child output.
+//! also on failure), ROS environment, timestamped child output.
 #![allow(dead_code)]
 
 use std::io::{BufRead, BufReader};
@@ -18,30 +18,21 @@ use configbot_manifests::{Manifest, RobotStack};
 use configbot_procmon::Preference;
 use configbot_ros1::Ros1Config;
 
+use configbot_test_support::{free_port, require};
+
 use super::{nuke, unique_root, v1_backend};
 
 /// True when Debian's ROS 1 is installed; otherwise says why the test skips
-/// (fails under CI: [`super::skip`]).
+/// (fails under CI: [`require`]).
 pub fn ros_available() -> bool {
-    let ok = Path::new("/usr/bin/rostopic").exists();
-    if !ok {
-        super::skip(
-            "/usr/bin/rostopic not found; apt-get install ros-core python3-rospy python3-rostopic",
-        );
-    }
-    ok
+    require(
+        "/usr/bin/rostopic not found; apt-get install ros-core python3-rospy python3-rostopic",
+        Path::new("/usr/bin/rostopic").exists(),
+    )
 }
 
-/// A free TCP port, never 11311.
-pub fn free_port() -> u16 {
-    loop {
-        let l = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
-        let p = l.local_addr().unwrap().port();
-        if p != 11311 {
-            return p;
-        }
-    }
-}
+/// How often the runtime tests' condition waits look.
+pub const RT_POLL: Duration = Duration::from_millis(50);
 
 pub fn script(name: &str) -> String {
     Path::new(env!("CARGO_MANIFEST_DIR"))
@@ -260,20 +251,16 @@ pub fn stack_yaml(apps: &str) -> String {
     )
 }
 
+/// The pid the runtime's ROS graph has for node `name`, if any.
+pub fn graph_pid(rt: &NodeRuntime, name: &str) -> Option<u32> {
+    rt.data_plane()?.graph().nodes.get(name)?.pid
+}
+
 /// Parses one RobotStack manifest.
 pub fn robot_stack(yaml: &str) -> RobotStack {
     let docs = configbot_manifests::load("test.yaml", yaml).unwrap_or_else(|e| panic!("{e}"));
     match &docs[0].manifest {
         Manifest::RobotStack(s) => s.clone(),
         _ => panic!("not a RobotStack"),
-    }
-}
-
-/// Waits (async) until `cond` holds.
-pub async fn eventually<F: FnMut() -> bool>(what: &str, timeout: Duration, mut cond: F) {
-    let end = Instant::now() + timeout;
-    while !cond() {
-        assert!(Instant::now() < end, "timed out after {timeout:?}: {what}");
-        tokio::time::sleep(Duration::from_millis(50)).await;
     }
 }

@@ -4,20 +4,14 @@
 
 use std::path::PathBuf;
 use std::process::Child;
-use std::sync::atomic::{AtomicU32, Ordering};
 use std::time::{Duration, Instant};
 
 use configbot_cgroups::{CgroupBackend, Layout, NodeName, SubtreeRoot, V1Backend};
-
-static COUNTER: AtomicU32 = AtomicU32::new(0);
+use configbot_test_support::try_wait_until;
 
 /// `configbot-agtest-<pid>-<n>`: the leftover check parses the pid back out.
 pub fn unique_root() -> String {
-    format!(
-        "configbot-agtest-{}-{}",
-        std::process::id(),
-        COUNTER.fetch_add(1, Ordering::Relaxed)
-    )
+    configbot_test_support::unique("configbot-agtest", '-')
 }
 
 pub struct Tree {
@@ -70,10 +64,12 @@ impl Drop for Tree {
         }
         for n in &self.nodes {
             // Processes leave the cgroup once reaped; retry briefly.
-            let deadline = Instant::now() + Duration::from_secs(5);
-            while self.backend.remove(n).is_err() && Instant::now() < deadline {
-                std::thread::sleep(Duration::from_millis(20));
-            }
+            let _ = try_wait_until(
+                &format!("{n} to go"),
+                Duration::from_secs(5),
+                Duration::from_millis(20),
+                || self.backend.remove(n).is_ok(),
+            );
         }
         let _ = self.backend.remove_root();
         if !std::thread::panicking() {
@@ -93,13 +89,4 @@ pub fn measure_cpus(b: &dyn CgroupBackend, n: &NodeName, window: Duration) -> f6
     std::thread::sleep(window);
     let u1 = b.stats(n).unwrap().usage_ns;
     (u1 - u0) as f64 / t0.elapsed().as_nanos() as f64
-}
-
-/// SIGKILL by pid (no `kill` binary needed).
-pub fn kill9(pid: u32) {
-    #[allow(unsafe_code)]
-    // SAFETY: kill(2) takes plain integers and touches no memory of ours.
-    unsafe {
-        libc::kill(pid as i32, libc::SIGKILL);
-    }
 }

@@ -4,21 +4,15 @@
 #![allow(dead_code)]
 
 use std::path::PathBuf;
-use std::process::{Child, Command, Stdio};
-use std::sync::atomic::{AtomicU32, Ordering};
+use std::process::{Command, Stdio};
 use std::time::Duration;
 
 use configbot_procmon::{EventStream, ProcEvent, ProcEventKind};
-
-static COUNTER: AtomicU32 = AtomicU32::new(0);
+pub use configbot_test_support::ChildGuard;
 
 /// A unique tag `configbot-procmon-test-<pid>-<n>`.
 pub fn unique_tag() -> String {
-    format!(
-        "configbot-procmon-test-{}-{}",
-        std::process::id(),
-        COUNTER.fetch_add(1, Ordering::Relaxed)
-    )
+    configbot_test_support::unique("configbot-procmon-test", '-')
 }
 
 /// A temp working dir removed on drop.
@@ -35,16 +29,6 @@ impl TempDir {
 impl Drop for TempDir {
     fn drop(&mut self) {
         let _ = std::fs::remove_dir_all(&self.0);
-    }
-}
-
-/// Kills and reaps the child on drop, even when the test fails.
-pub struct ChildGuard(pub Child);
-
-impl Drop for ChildGuard {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
     }
 }
 

@@ -1,7 +1,8 @@
 //! Shared helpers of the ROS 1 integration tests: skip when ROS is absent
-//! (fail under CI),
-//! free ports, process guards that kill whole process groups, line readers
-//! that timestamp a child's stdout, and condition waits with timeouts.
+//! (fail under CI: `configbot_test_support::require`), process guards that
+//! kill whole process groups and line readers that timestamp a child's
+//! stdout. Free ports, condition waits and skips:
+//! `configbot_test_support`.
 
 #![allow(dead_code)]
 
@@ -9,61 +10,28 @@ use std::io::{BufRead, BufReader};
 use std::os::unix::process::CommandExt;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
-use std::sync::atomic::{AtomicU32, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
+use configbot_test_support::{require, try_wait_until};
+
+/// How often the tests' condition waits look.
+pub const POLL: Duration = Duration::from_millis(50);
+
 /// True when Debian's ROS 1 tools are installed; otherwise says why the
 /// test is skipped. CI installs them (see the crate README), and there a
-/// missing tool fails the test ([`skip`]).
+/// missing tool fails the test ([`require`]).
 pub fn ros_available() -> bool {
-    let ok = Path::new("/usr/bin/rostopic").exists() || which("rostopic");
-    if !ok {
-        skip(
-            "`rostopic` not found; install ros-core python3-rospy python3-rostopic python3-rosnode python3-rosparam python3-roslaunch topic-tools",
-        );
-    }
-    ok
-}
-
-/// Says why a test cannot run on this machine and lets it pass, unless
-/// `CI=true` or `CONFIGBOT_REQUIRE=1` is set: then a missing prerequisite
-/// fails the test instead of skipping it silently.
-pub fn skip(why: &str) {
-    let required = std::env::var("CI").is_ok_and(|v| v == "true")
-        || std::env::var("CONFIGBOT_REQUIRE").is_ok_and(|v| v == "1");
-    assert!(
-        !required,
-        "cannot run: {why} (CI=true or CONFIGBOT_REQUIRE=1 makes a skip a failure)"
-    );
-    eprintln!("SKIPPED: {why}");
-}
-
-fn which(bin: &str) -> bool {
-    std::env::var_os("PATH")
-        .is_some_and(|p| std::env::split_paths(&p).any(|d| d.join(bin).exists()))
-}
-
-/// A free TCP port (never 11311).
-pub fn free_port() -> u16 {
-    loop {
-        let l = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
-        let p = l.local_addr().unwrap().port();
-        if p != 11311 {
-            return p;
-        }
-    }
-}
-
-static COUNTER: AtomicU32 = AtomicU32::new(0);
-
-/// A name unique to this process and call.
-pub fn unique(prefix: &str) -> String {
-    format!(
-        "{prefix}_{}_{}",
-        std::process::id(),
-        COUNTER.fetch_add(1, Ordering::Relaxed)
+    require(
+        "`rostopic` not found; install ros-core python3-rospy python3-rostopic python3-rosnode python3-rosparam python3-roslaunch topic-tools",
+        Path::new("/usr/bin/rostopic").exists()
+            || configbot_test_support::which("rostopic").is_some(),
     )
+}
+
+/// A name unique to this process and call (a valid ROS name part).
+pub fn unique(prefix: &str) -> String {
+    configbot_test_support::unique(prefix, '_')
 }
 
 pub fn scripts() -> PathBuf {
@@ -178,14 +146,12 @@ impl Proc {
             .args(["-INT", &self.child.id().to_string()])
             .stderr(Stdio::null())
             .status();
-        let end = Instant::now() + timeout;
-        while Instant::now() < end {
-            if matches!(self.child.try_wait(), Ok(Some(_))) {
-                return;
-            }
-            std::thread::sleep(Duration::from_millis(50));
+        let exited = try_wait_until("the child to exit", timeout, POLL, || {
+            matches!(self.child.try_wait(), Ok(Some(_)))
+        });
+        if exited.is_err() {
+            self.kill();
         }
-        self.kill();
     }
 
     /// Sends `signal` (e.g. `STOP`, `CONT`) to the child's process group.
@@ -215,18 +181,6 @@ impl Drop for Proc {
     fn drop(&mut self) {
         self.kill();
     }
-}
-
-/// Waits until `f` holds, panicking with `what` after `timeout`.
-pub fn wait_for(what: &str, timeout: Duration, mut f: impl FnMut() -> bool) {
-    let end = Instant::now() + timeout;
-    while Instant::now() < end {
-        if f() {
-            return;
-        }
-        std::thread::sleep(Duration::from_millis(50));
-    }
-    panic!("timed out after {timeout:?} waiting for {what}");
 }
 
 /// Rate a listener sees over `secs` seconds from now.

@@ -1,8 +1,9 @@
 //! Shared helpers of the simnode integration tests: skip when ROS is absent
-//! (fail under CI),
-//! free ports, masters (Debian's rosmaster or the in-process configbot-ros1
-//! master), child processes in their own process groups (killed on drop)
-//! whose stdout lines are timestamped, and condition waits with timeouts.
+//! (fail under CI: `configbot_test_support::require`), masters (Debian's
+//! rosmaster or the in-process configbot-ros1 master), child processes in
+//! their own process groups (killed on drop) whose stdout lines are
+//! timestamped. Free ports, condition waits and skips:
+//! `configbot_test_support`.
 
 #![allow(dead_code)]
 
@@ -10,12 +11,16 @@ use std::io::{BufRead, BufReader};
 use std::os::unix::process::CommandExt;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
-use std::sync::atomic::{AtomicU32, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
+use configbot_test_support::{free_port, require, try_wait_until, wait_until};
+
+/// How often the tests' condition waits look.
+pub const POLL: Duration = Duration::from_millis(50);
+
 /// True when Debian's ROS 1 tools are installed; otherwise says why the
-/// test is skipped ([`skip`]: a failure under CI).
+/// test is skipped ([`require`]: a failure under CI).
 pub fn ros_available() -> bool {
     let ok = [
         "/usr/bin/rostopic",
@@ -29,47 +34,15 @@ pub fn ros_available() -> bool {
             .stderr(Stdio::null())
             .status()
             .is_ok_and(|s| s.success());
-    if !ok {
-        skip(
-            "ROS 1 tools or rospy missing; apt-get install -y ros-core python3-rospy python3-rostopic python3-rosnode python3-rosparam python3-roslaunch topic-tools",
-        );
-    }
-    ok
+    require(
+        "ROS 1 tools or rospy missing; apt-get install -y ros-core python3-rospy python3-rostopic python3-rosnode python3-rosparam python3-roslaunch topic-tools",
+        ok,
+    )
 }
-
-/// Says why a test cannot run on this machine and lets it pass, unless
-/// `CI=true` or `CONFIGBOT_REQUIRE=1` is set: then a missing prerequisite
-/// fails the test instead of skipping it silently.
-pub fn skip(why: &str) {
-    let required = std::env::var("CI").is_ok_and(|v| v == "true")
-        || std::env::var("CONFIGBOT_REQUIRE").is_ok_and(|v| v == "1");
-    assert!(
-        !required,
-        "cannot run: {why} (CI=true or CONFIGBOT_REQUIRE=1 makes a skip a failure)"
-    );
-    eprintln!("SKIPPED: {why}");
-}
-
-/// A free TCP port (never 11311).
-pub fn free_port() -> u16 {
-    loop {
-        let l = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
-        let p = l.local_addr().unwrap().port();
-        if p != 11311 {
-            return p;
-        }
-    }
-}
-
-static COUNTER: AtomicU32 = AtomicU32::new(0);
 
 /// A ROS name unique to this process and call.
 pub fn unique(prefix: &str) -> String {
-    format!(
-        "{prefix}_{}_{}",
-        std::process::id(),
-        COUNTER.fetch_add(1, Ordering::Relaxed)
-    )
+    configbot_test_support::unique(prefix, '_')
 }
 
 pub fn scripts() -> PathBuf {
@@ -149,9 +122,12 @@ impl Master {
                 (None, Some((rt, dp)))
             }
         };
-        wait_for("the master to answer", Duration::from_secs(20), || {
-            env.try_run("rosnode", &["list"]).is_some()
-        });
+        wait_until(
+            "the master to answer",
+            Duration::from_secs(20),
+            POLL,
+            || env.try_run("rosnode", &["list"]).is_some(),
+        );
         Master {
             env,
             _proc: proc,
@@ -298,14 +274,13 @@ impl Proc {
             .args([sig, &self.child.id().to_string()])
             .stderr(Stdio::null())
             .status();
-        let end = Instant::now() + timeout;
-        while Instant::now() < end {
-            if matches!(self.child.try_wait(), Ok(Some(_))) {
-                return true;
-            }
-            std::thread::sleep(Duration::from_millis(20));
-        }
-        false
+        try_wait_until(
+            "the child to exit",
+            timeout,
+            Duration::from_millis(20),
+            || matches!(self.child.try_wait(), Ok(Some(_))),
+        )
+        .is_ok()
     }
 
     pub fn kill(&mut self) {
@@ -322,18 +297,6 @@ impl Drop for Proc {
     fn drop(&mut self) {
         self.kill();
     }
-}
-
-/// Waits until `f` holds, panicking with `what` after `timeout`.
-pub fn wait_for(what: &str, timeout: Duration, mut f: impl FnMut() -> bool) {
-    let end = Instant::now() + timeout;
-    while Instant::now() < end {
-        if f() {
-            return;
-        }
-        std::thread::sleep(Duration::from_millis(50));
-    }
-    panic!("timed out after {timeout:?} waiting for {what}");
 }
 
 /// Rate (Hz) of the messages `p` printed over the next `secs` seconds, and
