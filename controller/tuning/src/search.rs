@@ -306,9 +306,13 @@ pub(crate) fn next_trial(
     out: &mut Vec<Output>,
 ) -> State {
     let last = run.trials.len().checked_sub(1);
+    // The verdict needs windows that missed: a corner whose windows held but
+    // whose spread leaves its bound short is searched from (and, if nothing
+    // beats it, verified over a longer window by `finish`), not called Unsat.
     if let Some(i) = last
         && run.corner_trial == Some(i)
         && !run.trials[i].feasible()
+        && run.trials[i].eval.satisfaction < SATISFIED
     {
         let (config, reason) = unsat_reason(run, defs);
         let reason = format!(
@@ -430,6 +434,19 @@ pub(crate) fn finish(
         let verify = State::VerifyApply {
             candidate: Candidate::Trial { index },
             config,
+        };
+        return drain_first(run, env, verify);
+    }
+    // No trial's bound held, but the most restrictive config held in its
+    // windows: a longer verification decides before a verdict of Unsat.
+    if let Some(index) = run.corner_trial
+        && let Some(corner) = run.trials.get(index)
+        && corner.eval.satisfaction >= SATISFIED
+        && !run.rejected.contains(&index)
+    {
+        let verify = State::VerifyApply {
+            candidate: Candidate::Trial { index },
+            config: corner.config.clone(),
         };
         return drain_first(run, env, verify);
     }
