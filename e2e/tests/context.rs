@@ -154,7 +154,9 @@ fn new_app_is_detected_and_known_context_reapplies_fast() {
     let hit_after = hit_seen_ms - killed_ms;
     assert!(
         hit_after < 2000,
-        "library hit {hit_after} ms after the stop"
+        "library hit {hit_after} ms after the stop\nevents:\n{}\nserver log:\n{}",
+        robot.event_log(name),
+        robot.server_log()
     );
     // The re-apply itself, on the real cgroups: the hogs' quotas are A's
     // config again. Observable only when B's best config had other quotas
