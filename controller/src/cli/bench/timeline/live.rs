@@ -103,7 +103,7 @@ async fn watch(
                     events.push(SeenEvent {
                         t,
                         spec: e.name,
-                        reason: e.reason,
+                        reason: e.reason.to_string(),
                         message: e.message,
                     });
                 }
