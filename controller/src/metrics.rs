@@ -28,7 +28,7 @@ impl std::fmt::Debug for Sources {
 /// Metrics of the tuning loop, labelled by namespace and spec.
 #[derive(Debug, Clone)]
 pub struct TuningMetrics {
-    /// 1 for the run's current phase, 0 for the others.
+    /// 1 for the run's current phase, 0 for the others (of `configbot_tuning::machine::PHASES`).
     pub phase: IntGaugeVec,
     /// Trials measured in the current run.
     pub trials: IntGaugeVec,
@@ -43,16 +43,6 @@ pub struct TuningMetrics {
     /// Remediations and their undos.
     pub remediations: IntCounterVec,
 }
-
-/// Phases the phase gauge reports.
-pub const PHASES: [&str; 6] = [
-    "Baseline",
-    "Tuning",
-    "Satisfied",
-    "Unsat",
-    "Monitoring",
-    "Remediating",
-];
 
 fn gauge(name: &str, help: &str, labels: &[&str]) -> GaugeVec {
     GaugeVec::new(Opts::new(name, help), labels)

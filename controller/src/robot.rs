@@ -12,7 +12,7 @@ use configbot_agent::client::AgentClient;
 use configbot_agent::{AgentEvent, NodeRuntime, RuntimeEvent};
 use configbot_api::graph::Graph;
 use configbot_api::measure::{MeasureReport, MeasureRequest};
-use configbot_manifests::{Kind, ResourceConfig, RobotStack};
+use configbot_manifests::{Kind, ResourceConfig, RobotStack, StackPhase};
 use tokio::sync::broadcast;
 
 use crate::store::Store;
@@ -336,9 +336,10 @@ pub fn choose_stack(stacks: &[serde_json::Value]) -> Option<RobotStack> {
     stacks
         .iter()
         .filter(|s| {
+            let phase = s["status"]["phase"].as_str().map(StackPhase::parse);
             !matches!(
-                s["status"]["phase"].as_str(),
-                None | Some("Invalid" | "Pending")
+                phase,
+                None | Some(StackPhase::Invalid | StackPhase::Pending)
             )
         })
         .max_by(|a, b| {

@@ -9,7 +9,7 @@
 use std::path::Path;
 use std::sync::Mutex;
 
-use configbot_manifests::Kind;
+use configbot_manifests::{Kind, Reason};
 use rusqlite::{Connection, OptionalExtension, params};
 use serde_json::Value;
 use tokio::sync::broadcast;
@@ -106,7 +106,7 @@ pub struct Event {
     pub uid: String,
     /// `Normal` or `Warning`.
     pub type_: String,
-    pub reason: String,
+    pub reason: Reason,
     pub message: String,
 }
 
@@ -519,7 +519,7 @@ impl Store {
         &self,
         obj: &Value,
         type_: &str,
-        reason: &str,
+        reason: &Reason,
         message: &str,
     ) -> Result<()> {
         let (ns, name) = key_of(obj);
@@ -529,7 +529,7 @@ impl Store {
         let id = self.with(|c| {
             c.execute(
                 "INSERT INTO events (time, namespace, kind, name, uid, type, reason, message) VALUES (?1,?2,?3,?4,?5,?6,?7,?8)",
-                params![time, ns, kind, name, uid, type_, reason, message],
+                params![time, ns, kind, name, uid, type_, reason.as_str(), message],
             )?;
             let id = c.last_insert_rowid();
             c.execute("DELETE FROM events WHERE id <= ?1", params![id - 10_000])?;
@@ -543,7 +543,7 @@ impl Store {
             name,
             uid,
             type_: type_.into(),
-            reason: reason.into(),
+            reason: reason.clone(),
             message: message.into(),
         });
         Ok(())
@@ -570,7 +570,7 @@ impl Store {
                     name: r.get(4)?,
                     uid: r.get(5)?,
                     type_: r.get(6)?,
-                    reason: r.get(7)?,
+                    reason: Reason::parse(&r.get::<_, String>(7)?),
                     message: r.get(8)?,
                 })
             })?

@@ -174,13 +174,13 @@ fn data_survives_reopen() {
     {
         let s = Store::open(&path).unwrap();
         s.put(Kind::RobotStack, stack("a", "spot"), true).unwrap();
-        s.record_event(&stack("a", "spot"), "Normal", "Applied", "hello")
+        s.record_event(&stack("a", "spot"), "Normal", &Reason::Created, "hello")
             .unwrap();
     }
     let s = Store::open(&path).unwrap();
     assert!(s.get(Kind::RobotStack, "default", "a").unwrap().is_some());
     assert_eq!(
         s.events(None, None, Some("a")).unwrap()[0].reason,
-        "Applied"
+        Reason::Created
     );
 }

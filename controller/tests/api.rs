@@ -463,7 +463,7 @@ async fn dry_run_is_honoured_on_every_verb() {
             .events(None, None, Some("a"))
             .unwrap()
             .iter()
-            .any(|e| e.reason != "Created"),
+            .any(|e| e.reason != configbot_manifests::Reason::Created),
         "a dry run recorded an event"
     );
 }

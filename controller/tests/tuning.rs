@@ -165,7 +165,7 @@ impl Fixture {
             .events(None, Some("PerformanceSpec"), Some("nav-spec"))
             .unwrap()
             .into_iter()
-            .map(|e| (e.reason, e.message))
+            .map(|e| (e.reason.to_string(), e.message))
             .collect()
     }
 
@@ -254,7 +254,7 @@ async fn a_context_change_during_trials_starts_the_run_over_for_the_new_context(
     let f = Fixture::new(spec(35.0, 15, json!({})));
     let h = f.spawn();
     f.until("a trial of the first context", |r| {
-        r.trials.len() >= 2 && r.phase() == "Tuning"
+        r.trials.len() >= 2 && r.phase() == configbot_manifests::Phase::Tuning
     })
     .await;
     f.sim.stop_app("det").await.unwrap();

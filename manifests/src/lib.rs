@@ -15,6 +15,7 @@ pub mod performance_spec;
 pub mod robot_stack;
 pub mod schema;
 pub mod validate;
+pub mod vocab;
 pub mod yaml;
 
 use std::fmt;
@@ -28,6 +29,7 @@ pub use meta::{
 pub use performance_spec::{PerformanceSpec, PerformanceSpecSpec, PerformanceSpecStatus};
 pub use robot_stack::{RobotStack, RobotStackSpec, RobotStackStatus};
 pub use validate::FieldError;
+pub use vocab::{Phase, Reason, StackPhase};
 
 /// A decoded manifest of any kind.
 #[allow(clippy::large_enum_variant)] // short-lived values; boxing would only add noise
@@ -117,6 +119,17 @@ fn typed<T: serde::de::DeserializeOwned>(value: &serde_json::Value) -> Result<T,
             message: e.into_inner().to_string(),
         }
     })
+}
+
+/// The `status` of a stored object as `T` (PerformanceSpecStatus,
+/// RobotStackStatus), or its default when the object has none yet.
+pub fn decode_status<T: serde::de::DeserializeOwned + Default>(
+    obj: &serde_json::Value,
+) -> Result<T, serde_json::Error> {
+    match obj.get("status") {
+        None | Some(serde_json::Value::Null) => Ok(T::default()),
+        Some(status) => T::deserialize(status),
+    }
 }
 
 /// Decode and validate one JSON object (the API server's entry point).

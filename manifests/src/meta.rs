@@ -5,6 +5,8 @@ use std::collections::BTreeMap;
 use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 
+use crate::vocab::Reason;
+
 /// The API group of every ConfigBot kind.
 pub const GROUP: &str = "configbot.dev";
 /// The API version served and accepted.
@@ -96,7 +98,7 @@ pub struct Condition {
     pub type_: String,
     pub status: ConditionStatus,
     /// CamelCase machine-readable reason.
-    pub reason: String,
+    pub reason: Reason,
     /// Human-readable detail.
     #[serde(default)]
     pub message: String,
@@ -153,11 +155,11 @@ pub fn set_condition(conditions: &mut Vec<Condition>, new: Condition) -> bool {
 mod tests {
     use super::*;
 
-    fn cond(status: ConditionStatus, reason: &str, time: &str) -> Condition {
+    fn cond(status: ConditionStatus, reason: Reason, time: &str) -> Condition {
         Condition {
             type_: "Ready".into(),
             status,
-            reason: reason.into(),
+            reason,
             message: String::new(),
             last_transition_time: time.into(),
             observed_generation: 1,
@@ -166,21 +168,21 @@ mod tests {
 
     #[test]
     fn set_condition_keeps_transition_time_when_status_unchanged() {
-        let mut cs = vec![cond(ConditionStatus::False, "A", "t1")];
+        let mut cs = vec![cond(ConditionStatus::False, Reason::Tuning, "t1")];
         assert!(set_condition(
             &mut cs,
-            cond(ConditionStatus::False, "B", "t2")
+            cond(ConditionStatus::False, Reason::Satisfied, "t2")
         ));
         assert_eq!(cs[0].last_transition_time, "t1");
-        assert_eq!(cs[0].reason, "B");
+        assert_eq!(cs[0].reason, Reason::Satisfied);
         assert!(set_condition(
             &mut cs,
-            cond(ConditionStatus::True, "B", "t3")
+            cond(ConditionStatus::True, Reason::Satisfied, "t3")
         ));
         assert_eq!(cs[0].last_transition_time, "t3");
         assert!(!set_condition(
             &mut cs,
-            cond(ConditionStatus::True, "B", "t4")
+            cond(ConditionStatus::True, Reason::Satisfied, "t4")
         ));
         assert_eq!(cs.len(), 1);
     }

@@ -10,6 +10,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::config::ResourceConfig;
 use crate::meta::{Condition, ObjectMeta};
+use crate::vocab::Phase;
 
 /// Targets for a RobotStack and how ConfigBot may tune it.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
@@ -340,9 +341,10 @@ pub enum RemediationAction {
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize, JsonSchema)]
 #[serde(rename_all = "camelCase", deny_unknown_fields)]
 pub struct PerformanceSpecStatus {
-    /// `Pending`, `Baseline`, `Tuning`, `Satisfied`, `Unsat`, `Monitoring` or `Remediating`.
+    /// The reconciler's `Pending`, `Accepted` or `Invalid`, then the tuning
+    /// run's `Baseline`, `Tuning`, `Satisfied`, `Unsat`, `Monitoring` or `Remediating`.
     #[serde(default)]
-    pub phase: String,
+    pub phase: Phase,
     #[serde(default)]
     pub observed_generation: i64,
     #[serde(default, skip_serializing_if = "Vec::is_empty")]

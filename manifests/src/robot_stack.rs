@@ -7,6 +7,7 @@ use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 
 use crate::meta::{Condition, ObjectMeta};
+use crate::vocab::StackPhase;
 
 /// A robot and the apps it runs.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
@@ -144,9 +145,9 @@ pub struct MatchSpec {
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize, JsonSchema)]
 #[serde(rename_all = "camelCase", deny_unknown_fields)]
 pub struct RobotStackStatus {
-    /// `Pending`, `Accepted`, `Running` or `Degraded`.
+    /// `Pending` until reconciled, then `Accepted` or `Invalid`.
     #[serde(default)]
-    pub phase: String,
+    pub phase: StackPhase,
     #[serde(default)]
     pub observed_generation: i64,
     #[serde(default, skip_serializing_if = "Vec::is_empty")]

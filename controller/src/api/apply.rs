@@ -7,7 +7,7 @@ use axum::Json;
 use axum::body::Bytes;
 use axum::http::{HeaderMap, StatusCode, header};
 use axum::response::IntoResponse;
-use configbot_manifests::Kind;
+use configbot_manifests::{Kind, Reason};
 use serde_json::Value;
 
 use super::AppState;
@@ -102,15 +102,19 @@ pub fn server_side_apply(
             Ok((stored, changed)) => {
                 let created = live.is_none();
                 if changed && mode == Mode::Commit {
-                    let reason = if created { "Created" } else { "Updated" };
+                    let reason = if created {
+                        Reason::Created
+                    } else {
+                        Reason::Updated
+                    };
                     let _ = s.store.record_event(
                         &stored,
                         "Normal",
-                        reason,
+                        &reason,
                         &format!(
                             "{} {} by server-side apply ({manager})",
                             kind.name(),
-                            reason.to_lowercase()
+                            reason.as_str().to_lowercase()
                         ),
                     );
                 }

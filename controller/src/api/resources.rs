@@ -9,7 +9,7 @@ use axum::body::Bytes;
 use axum::extract::{Path, Query, State};
 use axum::http::{HeaderMap, StatusCode, header};
 use axum::response::{IntoResponse, Response};
-use configbot_manifests::{Kind, Manifest};
+use configbot_manifests::{Kind, Manifest, Reason};
 use serde::Deserialize;
 use serde_json::{Value, json};
 
@@ -319,7 +319,7 @@ pub async fn create(
     let _ = s.store.record_event(
         &stored,
         "Normal",
-        "Created",
+        &Reason::Created,
         &format!("{} created", kind.name()),
     );
     Ok((StatusCode::CREATED, Json(stored)).into_response())
@@ -340,12 +340,16 @@ pub async fn replace(
     managed::record_update(old.as_ref(), &mut obj, &p.manager(&headers), &now_rfc3339());
     let (stored, changed) = s.store.put_with(kind, obj, false, mode)?;
     if changed && mode == Mode::Commit {
-        let reason = if existed { "Updated" } else { "Created" };
+        let reason = if existed {
+            Reason::Updated
+        } else {
+            Reason::Created
+        };
         let _ = s.store.record_event(
             &stored,
             "Normal",
-            reason,
-            &format!("{} {}", kind.name(), reason.to_lowercase()),
+            &reason,
+            &format!("{} {}", kind.name(), reason.as_str().to_lowercase()),
         );
     }
     Ok((
@@ -446,7 +450,7 @@ pub async fn patch(
         let _ = s.store.record_event(
             &stored,
             "Normal",
-            "Updated",
+            &Reason::Updated,
             &format!("{} updated", kind.name()),
         );
     }
@@ -507,7 +511,7 @@ pub async fn delete(
         let _ = s.store.record_event(
             &obj,
             "Normal",
-            "Deleted",
+            &Reason::Deleted,
             &format!("{} deleted", kind.name()),
         );
     }

@@ -13,7 +13,10 @@ use clap::Args;
 use configbot_agent::agent::NodeStatus;
 use configbot_api::graph::Graph;
 use configbot_api::measure::MeasureReport;
-use configbot_manifests::{Kind, Manifest, PerformanceSpec, RobotStack};
+use configbot_manifests::performance_spec::TrialStatus;
+use configbot_manifests::{
+    Kind, Manifest, PerformanceSpec, PerformanceSpecStatus, Phase, RobotStack, decode_status,
+};
 use serde_json::{Value, json};
 
 use super::RobotArgs;
@@ -320,12 +323,11 @@ async fn demo(
     let name = &spec.metadata.name;
     let status = wait_for_outcome(robot, name, Duration::from_secs(a.timeout_secs)).await?;
     let tuning_secs = started.elapsed().as_secs_f64();
-    let phase = status["phase"].as_str().unwrap_or("").to_owned();
     println!(
-        "\n==> {phase} after {} trials in {tuning_secs:.0} s",
-        status["trials"].as_u64().unwrap_or(0)
+        "\n==> {} after {} trials in {tuning_secs:.0} s",
+        status.phase, status.trials
     );
-    if let Some(r) = status["reason"].as_str() {
+    if let Some(r) = &status.reason {
         println!("    {r}");
     }
     println!("==> measuring the tuned config for {} s", a.window_secs);
@@ -341,8 +343,8 @@ async fn demo(
     std::fs::create_dir_all(out)?;
     let plots = write_plots(out, &defs, &before, &after, &status)?;
     let summary = json!({
-        "stack": a.stack, "phase": phase, "tuningSeconds": tuning_secs,
-        "trials": status["trials"], "bestConfig": status["bestConfig"],
+        "stack": a.stack, "phase": status.phase, "tuningSeconds": tuning_secs,
+        "trials": status.trials, "bestConfig": status.best_config,
         "before": eb, "after": ea, "plots": plots,
     });
     let summary_path = out.join("summary.json");
@@ -363,72 +365,66 @@ pub async fn wait_for_outcome(
     robot: &PrivateRobot,
     name: &str,
     timeout: Duration,
-) -> anyhow::Result<Value> {
+) -> anyhow::Result<PerformanceSpecStatus> {
     let path = crate::client::path(Kind::PerformanceSpec, Some("default"), Some(name));
     let deadline = Instant::now() + timeout;
     let (mut shown, mut rejected) = (0usize, 0usize);
     loop {
-        let obj = robot.client.get(&path).await?;
-        let st = obj["status"].clone();
-        let trials = st["trialHistory"].as_array().cloned().unwrap_or_default();
-        for t in trials.iter().skip(shown) {
+        let st: PerformanceSpecStatus = decode_status(&robot.client.get(&path).await?)?;
+        for t in st.trial_history.iter().skip(shown) {
             print_trial(&st, t);
         }
-        shown = trials.len();
-        let gone = st["rejectedTrials"].as_array().cloned().unwrap_or_default();
-        for i in gone.iter().skip(rejected).filter_map(Value::as_u64) {
+        shown = st.trial_history.len();
+        for i in st.rejected_trials.iter().skip(rejected) {
             println!(
                 "    trial {} failed verification (a longer window after a settle); looking for a config with margin",
                 i + 1
             );
         }
-        rejected = gone.len();
-        let phase = st["phase"].as_str().unwrap_or("");
+        rejected = st.rejected_trials.len();
         if settled(&st) {
-            if let (Some(i), Some(f)) = (st["bestTrial"].as_u64(), st["bestTrialBackoff"].as_f64())
-            {
+            if let (Some(i), Some(f)) = (st.best_trial, st.best_trial_backoff) {
                 println!(
                     "    trial {} holds with its non-core knobs backed off to {:.0} %: {}",
                     i + 1,
                     f * 100.0,
-                    crate::tuning::view::config_text(&st["bestConfig"])
+                    crate::tuning::view::config_text(&st.best_config.clone().unwrap_or_default())
                 );
             }
             return Ok(st);
         }
         anyhow::ensure!(
             Instant::now() < deadline,
-            "tuning did not finish within {} s (phase {phase:?})",
-            timeout.as_secs()
+            "tuning did not finish within {} s (phase {:?})",
+            timeout.as_secs(),
+            st.phase.as_str()
         );
         tokio::time::sleep(Duration::from_millis(500)).await;
     }
 }
 
 /// One line per measured trial, as the demo and the bench show them.
-pub fn print_trial(st: &Value, t: &Value) {
+pub fn print_trial(st: &PerformanceSpecStatus, t: &TrialStatus) {
     println!(
         "    trial {:>2}/{}  satisfaction {:>5.1}%  objective {:>5}  {}  {}",
-        t["index"].as_u64().unwrap_or(0) + 1,
-        st["maxTrials"].as_u64().unwrap_or(0),
-        t["satisfaction"].as_f64().unwrap_or(0.0) * 100.0,
-        t["objective"]
-            .as_f64()
-            .map_or("-".into(), |o| format!("{o:.3}")),
-        if t["feasible"].as_bool() == Some(true) {
+        t.index + 1,
+        st.max_trials.unwrap_or(0),
+        t.satisfaction * 100.0,
+        t.objective.map_or("-".into(), |o| format!("{o:.3}")),
+        if t.feasible {
             "feasible  "
         } else {
             "infeasible"
         },
-        crate::tuning::view::config_text(&t["config"]),
+        crate::tuning::view::config_text(&t.config),
     );
 }
 
 /// Whether a spec's status shows the run's outcome: Unsat, or a monitored best config.
-pub fn settled(st: &Value) -> bool {
-    match st["phase"].as_str().unwrap_or("") {
-        "Unsat" => true,
-        "Monitoring" | "Satisfied" => st["bestConfig"].is_object(),
+pub fn settled(st: &PerformanceSpecStatus) -> bool {
+    match st.phase {
+        Phase::Unsat => true,
+        Phase::Monitoring | Phase::Satisfied => st.best_config.is_some(),
         _ => false,
     }
 }
@@ -484,15 +480,10 @@ fn write_plots(
     defs: &[MetricDef],
     before: &MeasureReport,
     after: &MeasureReport,
-    status: &Value,
+    status: &PerformanceSpecStatus,
 ) -> anyhow::Result<Vec<String>> {
     let mut paths = Vec::new();
-    let trials = status["trialHistory"]
-        .as_array()
-        .cloned()
-        .unwrap_or_default();
-    let progress =
-        crate::report::progress::chart(&trials, &crate::report::progress::rejected(status));
+    let progress = crate::report::progress::chart(&status.trial_history, &status.rejected_trials);
     let p = out.join("progress.svg");
     std::fs::write(&p, progress.to_svg())?;
     paths.push(p.display().to_string());

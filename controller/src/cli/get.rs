@@ -6,7 +6,7 @@ use super::output::{self, Output};
 use crate::client::{Client, path};
 use crate::table;
 use clap::Args;
-use configbot_manifests::Kind;
+use configbot_manifests::{Kind, PerformanceSpecStatus, RobotStackStatus, decode_status};
 use serde_json::Value;
 
 #[derive(Debug, Args)]
@@ -236,7 +236,13 @@ async fn trials(client: &Client, a: &GetArgs) -> anyhow::Result<ExitCode> {
         println!("{}", serde_json::to_string_pretty(&obj["status"])?);
         return Ok(ExitCode::SUCCESS);
     }
-    print!("{}", trials_view(&obj));
+    print!("{}", trials_view(&obj)?);
+    // While watching, a status that does not decode is shown, not fatal.
+    let redraw = |o: &Value| {
+        let view = trials_view(o).unwrap_or_else(|e| format!("unreadable status: {e}\n"));
+        // Clear the screen and redraw (ANSI), like `watch`.
+        print!("\x1b[2J\x1b[H{view}");
+    };
     if a.watch {
         let mut obj = obj;
         loop {
@@ -245,18 +251,14 @@ async fn trials(client: &Client, a: &GetArgs) -> anyhow::Result<ExitCode> {
                 "{}?fieldSelector=metadata.name%3D{name}&watch=true&resourceVersion={rv}",
                 path(kind, Some(&a.namespace), None)
             );
-            let expired = watch_until_error(client, &wpath, |o| {
-                // Clear the screen and redraw (ANSI), like `watch`.
-                print!("\x1b[2J\x1b[H{}", trials_view(o));
-            })
-            .await?;
+            let expired = watch_until_error(client, &wpath, redraw).await?;
             if !expired {
                 break;
             }
             obj = client
                 .get(&path(kind, Some(&a.namespace), Some(name)))
                 .await?;
-            print!("\x1b[2J\x1b[H{}", trials_view(&obj));
+            redraw(&obj);
         }
     }
     Ok(ExitCode::SUCCESS)
@@ -340,21 +342,33 @@ pub async fn describe(client: &Client, a: &DescribeArgs) -> anyhow::Result<ExitC
             println!("  Config: {}", obj["spec"]["config"]);
         }
     }
-    let st = &obj["status"];
+    let (phase, conditions) = match kind {
+        Kind::RobotStack => {
+            let st: RobotStackStatus = decode_status(&obj)?;
+            (st.phase.to_string(), st.conditions)
+        }
+        Kind::PerformanceSpec => {
+            let st: PerformanceSpecStatus = decode_status(&obj)?;
+            (st.phase.to_string(), st.conditions)
+        }
+        Kind::ConfigProfile => (String::new(), Vec::new()),
+    };
     println!("Status:");
-    println!("  Phase: {}", st["phase"].as_str().unwrap_or("<none>"));
+    if obj["status"].is_null() {
+        println!("  Phase: <none>");
+    } else {
+        println!("  Phase: {phase}");
+    }
     println!("  Conditions:");
     println!(
         "    {:<15} {:<8} {:<16} Message",
         "Type", "Status", "Reason"
     );
-    for c in st["conditions"].as_array().into_iter().flatten() {
+    for c in &conditions {
+        let status = format!("{:?}", c.status);
         println!(
-            "    {:<15} {:<8} {:<16} {}",
-            s(&c["type"]),
-            s(&c["status"]),
-            s(&c["reason"]),
-            s(&c["message"])
+            "    {:<15} {status:<8} {:<16} {}",
+            c.type_, c.reason, c.message
         );
     }
     let events = client

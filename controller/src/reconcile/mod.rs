@@ -9,7 +9,7 @@ use std::collections::{HashMap, HashSet};
 use std::sync::Arc;
 use std::time::Duration;
 
-use configbot_manifests::Kind;
+use configbot_manifests::{Kind, Phase};
 use serde_json::Value;
 use tokio::sync::mpsc;
 use tokio::time::Instant;
@@ -108,8 +108,7 @@ pub fn reconcile(key: &ObjectKey, obj: Option<Value>, ctx: &Context) -> Result<A
         .as_ref()
         .or(obj.get("status"))
         .and_then(|s| s["phase"].as_str())
-        .unwrap_or("")
-        .to_string();
+        .map_or(Phase::Pending, Phase::parse);
     if let Some(status) = status {
         let rv = obj["metadata"]["resourceVersion"].as_str();
         ctx.store
@@ -118,13 +117,13 @@ pub fn reconcile(key: &ObjectKey, obj: Option<Value>, ctx: &Context) -> Result<A
     // A valid spec whose stack exists gets a tuning runner (when a robot is attached).
     if key.kind == Kind::PerformanceSpec
         && let Some(t) = &ctx.tuning
-        && !matches!(phase.as_str(), "" | "Pending" | "Invalid")
+        && !matches!(phase, Phase::Pending | Phase::Invalid)
     {
         t.ensure(&key.namespace, &key.name);
     }
     for e in events {
         ctx.store
-            .record_event(&obj, e.type_, e.reason, &e.message)?;
+            .record_event(&obj, e.type_, &e.reason, &e.message)?;
     }
     Ok(Action::AwaitChange)
 }

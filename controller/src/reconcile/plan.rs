@@ -4,7 +4,8 @@
 
 use configbot_manifests::meta::{condition_types as ct, set_condition};
 use configbot_manifests::{
-    Condition, ConditionStatus, Manifest, PerformanceSpecStatus, RobotStackStatus,
+    Condition, ConditionStatus, Manifest, PerformanceSpecStatus, Phase, Reason, RobotStackStatus,
+    StackPhase,
 };
 use serde_json::Value;
 
@@ -12,18 +13,8 @@ use serde_json::Value;
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct PlannedEvent {
     pub type_: &'static str,
-    pub reason: &'static str,
+    pub reason: Reason,
     pub message: String,
-}
-
-/// Condition reasons (constants, never ad-hoc strings).
-pub mod reasons {
-    pub const VALID: &str = "Valid";
-    pub const INVALID: &str = "Invalid";
-    pub const STACK_FOUND: &str = "StackFound";
-    pub const STACK_NOT_FOUND: &str = "StackNotFound";
-    pub const STACK_MISMATCH: &str = "StackMismatch";
-    pub const NOT_MEASURED: &str = "NotMeasured";
 }
 
 /// Writes conditions of one object at one generation and time, and collects
@@ -37,13 +28,19 @@ struct Conditions<'a> {
 
 impl Conditions<'_> {
     /// Sets a condition; true when it changed (a new status, reason or message).
-    fn set(&mut self, type_: &str, status: ConditionStatus, reason: &str, message: String) -> bool {
+    fn set(
+        &mut self,
+        type_: &str,
+        status: ConditionStatus,
+        reason: Reason,
+        message: String,
+    ) -> bool {
         set_condition(
             self.list,
             Condition {
                 type_: type_.into(),
                 status,
-                reason: reason.into(),
+                reason,
                 message,
                 last_transition_time: self.now.into(),
                 observed_generation: self.generation,
@@ -58,10 +55,10 @@ impl Conditions<'_> {
         type_: &str,
         status: ConditionStatus,
         event: &'static str,
-        reason: &'static str,
+        reason: Reason,
         message: String,
     ) {
-        if self.set(type_, status, reason, message.clone()) {
+        if self.set(type_, status, reason.clone(), message.clone()) {
             self.events.push(PlannedEvent {
                 type_: event,
                 reason,
@@ -85,9 +82,7 @@ fn joined(errs: &[configbot_manifests::FieldError]) -> String {
 
 /// The object's status as it is (default when absent or unreadable).
 fn old_status<T: serde::de::DeserializeOwned + Default>(obj: &Value) -> T {
-    obj.get("status")
-        .and_then(|s| serde_json::from_value(s.clone()).ok())
-        .unwrap_or_default()
+    configbot_manifests::decode_status(obj).unwrap_or_default()
 }
 
 /// Status of a RobotStack.
@@ -109,27 +104,28 @@ pub fn robot_stack_status(obj: &Value, now: &str) -> (Option<Value>, Vec<Planned
                 ct::ACCEPTED,
                 ConditionStatus::True,
                 "Normal",
-                "Accepted",
+                Reason::Accepted,
                 msg,
             );
             new.apps = apps;
             new.nodes = nodes;
-            (new.phase.is_empty() || new.phase == "Invalid").then_some("Accepted")
+            matches!(new.phase, StackPhase::Pending | StackPhase::Invalid)
+                .then_some(StackPhase::Accepted)
         }
         Ok(_) => None,
         Err(errs) => {
             c.set(
                 ct::ACCEPTED,
                 ConditionStatus::False,
-                reasons::INVALID,
+                Reason::Invalid,
                 joined(&errs),
             );
-            Some("Invalid")
+            Some(StackPhase::Invalid)
         }
     };
     let events = c.events;
     if let Some(p) = phase {
-        new.phase = p.into();
+        new.phase = p;
     }
     finish(&old, new, events)
 }
@@ -155,8 +151,8 @@ pub fn performance_spec_status(
         Ok(Manifest::PerformanceSpec(p)) => p,
         Ok(_) => return (None, Vec::new()),
         Err(errs) => {
-            c.set(ct::ACCEPTED, False, reasons::INVALID, joined(&errs));
-            new.phase = "Invalid".into();
+            c.set(ct::ACCEPTED, False, Reason::Invalid, joined(&errs));
+            new.phase = Phase::Invalid;
             return finish(&old, new, Vec::new());
         }
     };
@@ -167,54 +163,47 @@ pub fn performance_spec_status(
     });
     match stack {
         None => {
-            phase = "Pending".into();
+            phase = Phase::Pending;
             let msg = format!(
                 "RobotStack {stack_name:?} does not exist in namespace {:?}; apply it and this spec proceeds",
                 spec.metadata.namespace()
             );
-            let r = reasons::STACK_NOT_FOUND;
-            c.set_with_event(ct::STACK_RESOLVED, False, "Warning", r, msg);
+            let r = Reason::StackNotFound;
+            c.set_with_event(ct::STACK_RESOLVED, False, "Warning", r.clone(), msg);
             c.set(ct::READY, False, r, "waiting for the stack".into());
         }
         Some(stack) => {
             let errs = configbot_manifests::validate::validate_against_stack(&spec, &stack);
             if errs.is_empty() {
                 let msg = format!("RobotStack {stack_name:?} found");
-                c.set_with_event(
-                    ct::STACK_RESOLVED,
-                    True,
-                    "Normal",
-                    reasons::STACK_FOUND,
-                    msg,
-                );
+                c.set_with_event(ct::STACK_RESOLVED, True, "Normal", Reason::StackFound, msg);
                 let metrics = format!("{} metrics", spec.spec.metrics.len());
-                c.set(ct::ACCEPTED, True, reasons::VALID, metrics);
-                if matches!(phase.as_str(), "" | "Pending" | "Invalid") {
-                    phase = "Accepted".into();
+                c.set(ct::ACCEPTED, True, Reason::Valid, metrics);
+                if matches!(phase, Phase::Pending | Phase::Invalid) {
+                    phase = Phase::Accepted;
                 }
                 // Once a tuning run reports readiness, the run owns `Ready`.
                 let tuned = c.list.iter().any(|c| {
                     c.type_ == ct::READY
-                        && ![reasons::NOT_MEASURED, reasons::STACK_NOT_FOUND]
-                            .contains(&c.reason.as_str())
+                        && !matches!(c.reason, Reason::NotMeasured | Reason::StackNotFound)
                 });
                 if !tuned {
                     let msg = "no agent has reported metrics for this stack yet".into();
-                    c.set(ct::READY, Unknown, reasons::NOT_MEASURED, msg);
+                    c.set(ct::READY, Unknown, Reason::NotMeasured, msg);
                 }
             } else {
-                phase = "Invalid".into();
+                phase = Phase::Invalid;
                 let msg = joined(&errs);
                 c.set(
                     ct::STACK_RESOLVED,
                     False,
-                    reasons::STACK_MISMATCH,
+                    Reason::StackMismatch,
                     msg.clone(),
                 );
                 // A mismatch is reported on every reconcile while it lasts.
                 c.events.push(PlannedEvent {
                     type_: "Warning",
-                    reason: reasons::STACK_MISMATCH,
+                    reason: Reason::StackMismatch,
                     message: msg,
                 });
             }
@@ -270,16 +259,12 @@ mod tests {
     fn spec_status_table() {
         // (stack, phase, StackResolved condition)
         let cases = [
-            (None, "Pending", ("False", reasons::STACK_NOT_FOUND)),
-            (
-                Some(stack("nav")),
-                "Accepted",
-                ("True", reasons::STACK_FOUND),
-            ),
+            (None, "Pending", ("False", Reason::StackNotFound)),
+            (Some(stack("nav")), "Accepted", ("True", Reason::StackFound)),
             (
                 Some(stack("other")),
                 "Invalid",
-                ("False", reasons::STACK_MISMATCH),
+                ("False", Reason::StackMismatch),
             ),
         ];
         for (st, phase, (cs, reason)) in cases {

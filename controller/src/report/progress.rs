@@ -5,36 +5,25 @@
 //! rejected trial is not a confirmed best. Pure: the status's trial history
 //! and `rejectedTrials` in, a [`Chart`] out.
 
-use serde_json::Value;
+use configbot_manifests::performance_spec::TrialStatus;
 
 use super::svg::{Chart, Mark, Series, colors};
 
-/// The trial indices listed in a PerformanceSpec status's `rejectedTrials`.
-pub fn rejected(status: &Value) -> Vec<u64> {
-    status["rejectedTrials"]
-        .as_array()
-        .into_iter()
-        .flatten()
-        .filter_map(Value::as_u64)
-        .collect()
-}
-
 /// The progress chart of `trials` (the status's `trialHistory` entries, x =
-/// 1-based trial number), with the trials whose index is in `rejected`
-/// drawn as rings and left out of the best-so-far line.
-pub fn chart(trials: &[Value], rejected: &[u64]) -> Chart {
+/// 1-based trial number), with the trials whose index is in `rejected` (the
+/// status's `rejectedTrials`) drawn as rings and left out of the best-so-far line.
+pub fn chart(trials: &[TrialStatus], rejected: &[u32]) -> Chart {
     let mut feasible = Vec::new();
     let mut infeasible = Vec::new();
     let mut refused = Vec::new();
     let mut best = Vec::new();
     let mut best_so_far: Option<f64> = None;
     for t in trials {
-        let index = t["index"].as_u64().unwrap_or(0);
-        let x = index as f64 + 1.0;
-        let o = t["objective"].as_f64().unwrap_or(0.0);
-        if rejected.contains(&index) {
+        let x = f64::from(t.index) + 1.0;
+        let o = t.objective.unwrap_or(0.0);
+        if rejected.contains(&t.index) {
             refused.push((x, o));
-        } else if t["feasible"].as_bool() == Some(true) {
+        } else if t.feasible {
             feasible.push((x, o));
             best_so_far = Some(best_so_far.map_or(o, |b| b.max(o)));
         } else {
@@ -84,12 +73,15 @@ pub fn chart(trials: &[Value], rejected: &[u64]) -> Chart {
 
 #[cfg(test)]
 mod tests {
-    use serde_json::json;
-
     use super::*;
 
-    fn trial(index: u64, feasible: bool, objective: f64) -> Value {
-        json!({"index": index, "feasible": feasible, "objective": objective})
+    fn trial(index: u32, feasible: bool, objective: f64) -> TrialStatus {
+        TrialStatus {
+            index,
+            feasible,
+            objective: Some(objective),
+            ..TrialStatus::default()
+        }
     }
 
     fn points(c: &Chart, mark: Mark) -> &[(f64, f64)] {
@@ -101,13 +93,13 @@ mod tests {
 
     #[test]
     fn rejected_trials_get_rings_and_never_raise_the_best_line() {
-        let status = json!({"rejectedTrials": [2], "trialHistory": [
-            trial(0, false, 0.1), trial(1, true, 0.4), trial(2, true, 0.9),
-            trial(3, true, 0.6)]});
-        let trials = status["trialHistory"].as_array().unwrap().clone();
-        let r = rejected(&status);
-        assert_eq!(r, [2]);
-        let c = chart(&trials, &r);
+        let trials = [
+            trial(0, false, 0.1),
+            trial(1, true, 0.4),
+            trial(2, true, 0.9),
+            trial(3, true, 0.6),
+        ];
+        let c = chart(&trials, &[2]);
         assert_eq!(points(&c, Mark::Dot), [(2.0, 0.4), (4.0, 0.6)]);
         assert_eq!(points(&c, Mark::Cross), [(1.0, 0.1)]);
         assert_eq!(points(&c, Mark::Ring), [(3.0, 0.9)]);
@@ -124,7 +116,7 @@ mod tests {
     #[test]
     fn without_rejections_the_chart_has_no_ring_series() {
         let trials = [trial(0, true, 0.5), trial(1, true, 0.3)];
-        let c = chart(&trials, &rejected(&json!({})));
+        let c = chart(&trials, &[]);
         assert!(c.series.iter().all(|s| s.mark != Mark::Ring));
         assert_eq!(points(&c, Mark::Step), [(1.0, 0.5), (2.0, 0.5)]);
         // A rejected first trial: no best yet, so no line point for it.

@@ -13,7 +13,7 @@ use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
-use configbot_manifests::{Kind, PerformanceSpec, PerformanceSpecStatus, RobotStack};
+use configbot_manifests::{Kind, PerformanceSpec, PerformanceSpecStatus, Reason, RobotStack};
 use serde::{Deserialize, Serialize};
 use tokio::sync::broadcast;
 use tokio::task::JoinHandle;
@@ -25,7 +25,7 @@ use configbot_tuning::outcome;
 
 use super::profiles;
 use super::robot::{Clock, Robot, RobotError};
-use crate::metrics::{Metrics, PHASES};
+use crate::metrics::Metrics;
 use crate::store::{Store, StoreError};
 
 /// Scope of the runs in the store's controller state.
@@ -161,7 +161,7 @@ pub async fn run_spec(ctx: RunnerCtx, ns: String, name: String) {
             Err((e, keep)) => {
                 r.failures += 1;
                 if r.failures == 1 {
-                    r.event(false, "TuningError", &e.to_string());
+                    r.event(false, &Reason::TuningError, &e.to_string());
                 }
                 run = keep;
                 let backoff = Duration::from_millis(500u64.saturating_mul(1 << r.failures.min(6)));
@@ -177,7 +177,7 @@ pub async fn run_spec(ctx: RunnerCtx, ns: String, name: String) {
 type IterResult = Result<Option<Run>, (RunnerError, Option<Run>)>;
 
 impl Runner {
-    fn event(&self, normal: bool, reason: &str, message: &str) {
+    fn event(&self, normal: bool, reason: &Reason, message: &str) {
         if let Ok(Some(obj)) = self
             .ctx
             .store
@@ -240,7 +240,7 @@ impl Runner {
             Some(old) => {
                 let t = Trigger::SpecChanged;
                 self.trigger_metric(&t);
-                self.event(true, t.reason(), &t.message());
+                self.event(true, &t.reason(), &t.message());
                 Run::after_spec_change(old, generation)
             }
             None => match store.get_state(STATE_SCOPE, &key) {
@@ -249,7 +249,7 @@ impl Runner {
                         let resumed = p.run.resumed();
                         self.event(
                             true,
-                            "Resumed",
+                            &Reason::Resumed,
                             &format!(
                                 "resumed the tuning run in phase {} after {} trials",
                                 resumed.phase(),
@@ -323,30 +323,33 @@ impl Runner {
                 let m = &self.ctx.metrics.tuning;
                 let l = [self.ns.as_str(), self.name.as_str()];
                 match reason {
-                    "LibraryHit" => m.library_hits.with_label_values(&l).inc(),
-                    "RemediationUndone" => m
+                    Reason::LibraryHit => m.library_hits.with_label_values(&l).inc(),
+                    Reason::RemediationUndone => m
                         .remediations
                         .with_label_values(&[l[0], l[1], "undo"])
                         .inc(),
-                    "ConstraintViolated"
-                    | "ContextChanged"
-                    | "LibraryConfigFailed"
-                    | "TuningAllowed" => m.triggers.with_label_values(&[l[0], l[1], reason]).inc(),
+                    Reason::ConstraintViolated
+                    | Reason::ContextChanged
+                    | Reason::LibraryConfigFailed
+                    | Reason::TuningAllowed => m
+                        .triggers
+                        .with_label_values(&[l[0], l[1], reason.as_str()])
+                        .inc(),
                     _ => {}
                 }
-                self.event(!warning, reason, &message);
+                self.event(!warning, &reason, &message);
             }
             Output::SaveProfile(p) => match profiles::save(&self.ctx.store, &p) {
                 Ok(()) => self.event(
                     true,
-                    "ProfileSaved",
+                    &Reason::ProfileSaved,
                     &format!(
                         "config library: saved ConfigProfile {} for context {}",
                         p.metadata.name,
                         p.spec.context.key()
                     ),
                 ),
-                Err(e) => self.event(false, "ProfileSaveFailed", &e.to_string()),
+                Err(e) => self.event(false, &Reason::ProfileSaveFailed, &e.to_string()),
             },
         }
     }
@@ -356,7 +359,7 @@ impl Runner {
             .metrics
             .tuning
             .triggers
-            .with_label_values(&[self.ns.as_str(), self.name.as_str(), t.reason()])
+            .with_label_values(&[self.ns.as_str(), self.name.as_str(), t.reason().as_str()])
             .inc();
     }
 
@@ -557,10 +560,8 @@ impl Runner {
             else {
                 return Ok(());
             };
-            let old: PerformanceSpecStatus = obj
-                .get("status")
-                .and_then(|s| serde_json::from_value(s.clone()).ok())
-                .unwrap_or_default();
+            let old: PerformanceSpecStatus =
+                configbot_manifests::decode_status(&obj).unwrap_or_default();
             let new = configbot_tuning::status::status(
                 &old,
                 run,
@@ -592,10 +593,11 @@ impl Runner {
     fn metrics(&self, run: &Run, defs: &[configbot_tuning::measure::MetricDef]) {
         let m = &self.ctx.metrics.tuning;
         let (ns, name) = (self.ns.as_str(), self.name.as_str());
-        for p in PHASES {
+        let phase = run.phase();
+        for p in &machine::PHASES {
             m.phase
-                .with_label_values(&[ns, name, p])
-                .set(i64::from(run.phase() == p));
+                .with_label_values(&[ns, name, p.as_str()])
+                .set(i64::from(phase == *p));
         }
         m.trials
             .with_label_values(&[ns, name])

@@ -3,36 +3,32 @@
 //! trials) with satisfaction, objective, feasibility, every metric and the
 //! config; `*` marks the applied best.
 
+use configbot_manifests::performance_spec::TrialStatus;
+use configbot_manifests::{PerformanceSpecStatus, ResourceConfig};
 use serde_json::Value;
 
 use crate::table;
 
-fn num(v: &Value, digits: usize) -> String {
-    v.as_f64()
-        .map_or("-".to_string(), |x| format!("{x:.digits$}"))
+fn num(v: Option<f64>, digits: usize) -> String {
+    v.map_or("-".to_string(), |x| format!("{x:.digits$}"))
 }
 
-fn pct(v: &Value) -> String {
-    v.as_f64()
-        .map_or("-".to_string(), |x| format!("{:.1}%", x * 100.0))
+fn pct(v: Option<f64>) -> String {
+    v.map_or("-".to_string(), |x| format!("{:.1}%", x * 100.0))
 }
 
 /// One-line summary of a config: `/node=0.5cpu /topic>/sub=4Hz`.
-pub fn config_text(c: &Value) -> String {
-    let mut parts: Vec<String> = c["cpu"]
-        .as_object()
-        .into_iter()
-        .flatten()
-        .map(|(n, v)| format!("{n}={}cpu", num(v, 3)))
+pub fn config_text(c: &ResourceConfig) -> String {
+    let mut parts: Vec<String> = c
+        .cpu
+        .iter()
+        .map(|(n, v)| format!("{n}={v:.3}cpu"))
         .collect();
-    parts.extend(c["adaptors"].as_array().into_iter().flatten().map(|a| {
-        format!(
-            "{}>{}={}Hz",
-            a["topic"].as_str().unwrap_or("?"),
-            a["subscriber"].as_str().unwrap_or("?"),
-            num(&a["rateHz"], 2)
-        )
-    }));
+    parts.extend(
+        c.adaptors
+            .iter()
+            .map(|a| format!("{}>{}={:.2}Hz", a.topic, a.subscriber, a.rate_hz)),
+    );
     if parts.is_empty() {
         "unlimited".into()
     } else {
@@ -50,97 +46,89 @@ pub fn bar(done: u64, total: u64, width: usize) -> String {
     format!("[{}{}]", "#".repeat(filled), ".".repeat(width - filled))
 }
 
-/// The whole view of one PerformanceSpec object.
-pub fn trials_view(obj: &Value) -> String {
-    let st = &obj["status"];
+/// The whole view of one PerformanceSpec object; fails when its status does
+/// not decode.
+pub fn trials_view(obj: &Value) -> Result<String, serde_json::Error> {
+    let st: PerformanceSpecStatus = configbot_manifests::decode_status(obj)?;
     let name = obj["metadata"]["name"].as_str().unwrap_or("?");
-    let done = st["trials"].as_u64().unwrap_or(0);
-    let total = st["maxTrials"].as_u64().unwrap_or(0);
-    let mut out = format!(
-        "{name}: {}  trials {done}/{total} {}  satisfaction {}\n",
-        st["phase"].as_str().unwrap_or("Pending"),
-        bar(done, total, 20),
-        pct(&st["satisfaction"])
-    );
-    if let Some(c) = st["context"].as_str() {
-        out.push_str(&format!("context: {c}\n"));
-    }
-    let knobs: Vec<String> = st["knobs"]
-        .as_array()
-        .into_iter()
-        .flatten()
-        .map(|k| {
-            let name = k["name"].as_str().unwrap_or("?");
-            if k["pinnedAt"].is_number() {
-                format!(
-                    "{name} = {} (pinned: feeds no metric)",
-                    num(&k["pinnedAt"], 2)
-                )
-            } else {
-                format!("{name} [{}, {}]", num(&k["min"], 2), num(&k["max"], 2))
-            }
-        })
-        .collect();
-    if !knobs.is_empty() {
-        out.push_str(&format!("knobs: {}\n", knobs.join(", ")));
-    }
     let metrics: Vec<String> = obj["spec"]["metrics"]
         .as_array()
         .into_iter()
         .flatten()
         .filter_map(|m| m["name"].as_str().map(str::to_string))
         .collect();
+    Ok(view(name, &metrics, &st))
+}
+
+fn view(name: &str, metrics: &[String], st: &PerformanceSpecStatus) -> String {
+    let (done, total) = (st.trials, st.max_trials.unwrap_or(0));
+    let mut out = format!(
+        "{name}: {}  trials {done}/{total} {}  satisfaction {}\n",
+        st.phase,
+        bar(done.into(), total.into(), 20),
+        pct(st.satisfaction)
+    );
+    if let Some(c) = &st.context {
+        out.push_str(&format!("context: {c}\n"));
+    }
+    let knobs: Vec<String> = st
+        .knobs
+        .iter()
+        .map(|k| match k.pinned_at {
+            Some(p) => format!("{} = {p:.2} (pinned: feeds no metric)", k.name),
+            None => format!("{} [{:.2}, {:.2}]", k.name, k.min, k.max),
+        })
+        .collect();
+    if !knobs.is_empty() {
+        out.push_str(&format!("knobs: {}\n", knobs.join(", ")));
+    }
     let mut headers: Vec<String> = ["TRIAL", "SATISFACTION", "OBJECTIVE", "FEASIBLE"]
         .map(String::from)
         .to_vec();
     headers.extend(metrics.iter().map(|m| m.to_uppercase()));
     headers.push("CONFIG".into());
-    let best = st["bestTrial"].as_u64();
-    let rejected: Vec<u64> = st["rejectedTrials"]
-        .as_array()
-        .into_iter()
-        .flatten()
-        .filter_map(Value::as_u64)
-        .collect();
-    let row = |label: String, t: &Value| {
-        let failed = t["index"].as_u64().is_some_and(|i| rejected.contains(&i));
+    let row = |label: String, t: &TrialStatus| {
+        let failed = st.rejected_trials.contains(&t.index);
         let mut r = vec![
             label,
-            pct(&t["satisfaction"]),
-            num(&t["objective"], 3),
-            match (t["feasible"].as_bool(), t["censored"].as_bool()) {
-                (_, Some(true)) => "no (stopped early)".into(),
-                (Some(true), _) if failed => "yes, failed verification".into(),
-                (Some(true), _) => "yes".into(),
+            pct(Some(t.satisfaction)),
+            num(t.objective, 3),
+            match (t.feasible, t.censored) {
+                (_, true) => "no (stopped early)".into(),
+                (true, _) if failed => "yes, failed verification".into(),
+                (true, _) => "yes".into(),
                 _ => "no".into(),
             },
         ];
-        r.extend(metrics.iter().map(|m| num(&t["values"][m], 2)));
-        r.push(config_text(&t["config"]));
+        r.extend(metrics.iter().map(|m| num(t.values.get(m).copied(), 2)));
+        r.push(config_text(&t.config));
         r
     };
     let mut rows = Vec::new();
-    if !st["baseline"].is_null() {
-        rows.push(row("baseline".into(), &st["baseline"]));
+    if let Some(b) = &st.baseline {
+        rows.push(row("baseline".into(), b));
     }
-    for t in st["trialHistory"].as_array().into_iter().flatten() {
-        let i = t["index"].as_u64().unwrap_or(0);
-        let mark = if best == Some(i) { "*" } else { "" };
-        rows.push(row(format!("{i}{mark}"), t));
+    for t in &st.trial_history {
+        let mark = if st.best_trial == Some(t.index) {
+            "*"
+        } else {
+            ""
+        };
+        rows.push(row(format!("{}{mark}", t.index), t));
     }
     if rows.is_empty() {
         out.push_str("no trials yet\n");
     } else {
         out.push_str(&table::render(&headers, &rows));
     }
-    if let (Some(i), Some(f)) = (best, st["bestTrialBackoff"].as_f64()) {
+    if let (Some(i), Some(f)) = (st.best_trial, st.best_trial_backoff) {
         out.push_str(&format!(
             "applied: trial {i} with its non-core knobs backed off to {:.0} %: {}\n",
             f * 100.0,
-            config_text(&st["bestConfig"])
+            config_text(&st.best_config.clone().unwrap_or_default())
         ));
     }
-    if let Some(r) = st["reason"].as_str() {
+    if let Some(r) = &st.reason {
         out.push_str(&format!("reason: {r}\n"));
     }
     out
@@ -168,7 +156,7 @@ mod tests {
                      "values": {"cmd-vel": 20.0}, "satisfaction": 0.0, "feasible": false, "censored": true}],
                 "bestTrial": 0, "reason": "why"}
         });
-        let v = trials_view(&obj);
+        let v = trials_view(&obj).unwrap();
         let lines: Vec<&str> = v.lines().collect();
         assert_eq!(
             lines[0],
@@ -207,7 +195,7 @@ mod tests {
                 "rejectedTrials": [1], "bestTrial": 1, "bestTrialBackoff": 0.64,
                 "bestConfig": {"cpu": {"/det": 1.2}}}
         });
-        let v = trials_view(&obj);
+        let v = trials_view(&obj).unwrap();
         let rows: Vec<&str> = v.lines().filter(|l| l.starts_with(['0', '1'])).collect();
         assert!(!rows[0].contains("failed verification"), "{v}");
         assert!(rows[1].contains("yes, failed verification"), "{v}");

@@ -21,7 +21,7 @@ use std::time::Duration;
 use configbot_api::graph::Graph;
 use configbot_api::measure::{MeasureReport, MeasureRequest};
 use configbot_manifests::{
-    ConfigProfile, PerformanceSpecSpec, ProfileContext, ResourceConfig, RobotStack,
+    ConfigProfile, PerformanceSpecSpec, Phase, ProfileContext, Reason, ResourceConfig, RobotStack,
 };
 use configbot_optimizer::Optimizer;
 use serde::{Deserialize, Serialize};
@@ -403,33 +403,45 @@ impl Run {
     }
 
     /// Status phase.
-    pub fn phase(&self) -> &'static str {
+    pub fn phase(&self) -> Phase {
         match &self.state {
-            State::StartUp { .. } | State::Observe { .. } | State::Baseline { .. } => "Baseline",
+            State::StartUp { .. } | State::Observe { .. } | State::Baseline { .. } => {
+                Phase::Baseline
+            }
             State::TrialApply { .. } | State::TrialSettle { .. } | State::TrialProfile { .. } => {
-                "Tuning"
+                Phase::Tuning
             }
             State::Drain { then, .. } => match **then {
-                State::VerifyApply { .. } => "Satisfied",
-                _ => "Tuning",
+                State::VerifyApply { .. } => Phase::Satisfied,
+                _ => Phase::Tuning,
             },
             State::VerifyApply { .. } | State::VerifySettle { .. } | State::Verify { .. } => {
-                "Satisfied"
+                Phase::Satisfied
             }
             State::UnsatApply { .. }
             | State::Monitor {
                 satisfied: false, ..
-            } => "Unsat",
+            } => Phase::Unsat,
             State::Monitor {
                 satisfied: true, ..
-            } => "Monitoring",
+            } => Phase::Monitoring,
             State::RemediatePause { .. }
             | State::RemediateApply { .. }
             | State::Remediating { .. }
-            | State::RemediateUndo { .. } => "Remediating",
+            | State::RemediateUndo { .. } => Phase::Remediating,
         }
     }
 }
+
+/// Every phase [`Run::phase`] reports (the others are the reconciler's).
+pub const PHASES: [Phase; 6] = [
+    Phase::Baseline,
+    Phase::Tuning,
+    Phase::Satisfied,
+    Phase::Unsat,
+    Phase::Monitoring,
+    Phase::Remediating,
+];
 
 /// The IO a state needs.
 #[derive(Debug, Clone, PartialEq)]
@@ -469,13 +481,13 @@ pub enum Input {
 pub enum Output {
     Event {
         warning: bool,
-        reason: &'static str,
+        reason: Reason,
         message: String,
     },
     SaveProfile(Box<ConfigProfile>),
 }
 
-pub(crate) fn normal(reason: &'static str, message: String) -> Output {
+pub(crate) fn normal(reason: Reason, message: String) -> Output {
     Output::Event {
         warning: false,
         reason,
@@ -483,7 +495,7 @@ pub(crate) fn normal(reason: &'static str, message: String) -> Output {
     }
 }
 
-pub(crate) fn warning(reason: &'static str, message: String) -> Output {
+pub(crate) fn warning(reason: Reason, message: String) -> Output {
     Output::Event {
         warning: true,
         reason,
@@ -635,7 +647,7 @@ pub fn step(mut run: Run, input: Input, env: &Env<'_>) -> (Run, Vec<Output>) {
                 Some(p) if !skip_library && library::learned_for(&p, env.spec) => {
                     run.library_hits += 1;
                     out.push(normal(
-                        "LibraryHit",
+                        Reason::LibraryHit,
                         format!(
                             "familiar context {}: re-applying profile {} without trials",
                             context.key(),
@@ -753,7 +765,7 @@ pub fn step(mut run: Run, input: Input, env: &Env<'_>) -> (Run, Vec<Output>) {
                     .is_none_or(|p| p.duration_ms < env.trial_ms())
             {
                 out.push(normal(
-                    "NearBoundary",
+                    Reason::NearBoundary,
                     format!(
                         "trial {}: a core constraint is near its target; measuring up to {} s to tell",
                         run.trials.len(),
@@ -842,7 +854,7 @@ pub fn step(mut run: Run, input: Input, env: &Env<'_>) -> (Run, Vec<Output>) {
         (State::RemediatePause { remedy }, Input::AppsPaused(rec)) => {
             match rec {
                 Some(r) => out.push(normal(
-                    "RecordingInputs",
+                    Reason::RecordingInputs,
                     format!(
                         "recording {} (the inputs of {}) to {}",
                         r.topics.join(", "),
@@ -851,7 +863,7 @@ pub fn step(mut run: Run, input: Input, env: &Env<'_>) -> (Run, Vec<Output>) {
                     ),
                 )),
                 None if remedy.record => out.push(warning(
-                    "NotRecording",
+                    Reason::NotRecording,
                     format!(
                         "no rosbag of the inputs of {}: rosbag is not installed on the robot or they subscribe to nothing",
                         list_or_none(&remedy.apps)
@@ -878,7 +890,7 @@ pub fn step(mut run: Run, input: Input, env: &Env<'_>) -> (Run, Vec<Output>) {
         (State::RemediateUndo { remedy }, Input::AppsResumed(rec)) => {
             let saved = rec.map_or(String::new(), |p| format!("; inputs recorded to {p}"));
             out.push(normal(
-                "RemediationUndone",
+                Reason::RemediationUndone,
                 format!(
                     "tuning allowed again: {} {}{saved}; relearning",
                     if remedy.freeze { "thawed" } else { "restarted" },
@@ -954,7 +966,7 @@ fn startup_step(
             let secs = waited as f64 / 1000.0;
             if !missing.is_empty() || !startup::core_up(defs, &flowed) {
                 out.push(warning(
-                    "StartupTimeout",
+                    Reason::StartupTimeout,
                     format!(
                         "after {secs:.0} s: {}{}; going on with the stack as it is",
                         if missing.is_empty() {
@@ -971,7 +983,7 @@ fn startup_step(
                 ));
             } else {
                 out.push(normal(
-                    "StackUp",
+                    Reason::StackUp,
                     format!(
                         "every node the stack starts registered and {} after {secs:.0} s",
                         if silent.is_empty() {

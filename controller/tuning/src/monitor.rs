@@ -5,6 +5,7 @@
 //! trigger has a cause that becomes a condition and an event.
 
 use configbot_api::graph::GraphEvent;
+use configbot_manifests::Reason;
 use serde::{Deserialize, Serialize};
 
 /// What the tuning loop needs to know of the runtime's `RuntimeEvent`s. A
@@ -59,13 +60,13 @@ pub enum Trigger {
 
 impl Trigger {
     /// CamelCase reason for conditions and events.
-    pub fn reason(&self) -> &'static str {
+    pub fn reason(&self) -> Reason {
         match self {
-            Trigger::SpecChanged => "SpecChanged",
-            Trigger::ConstraintViolated { .. } => "ConstraintViolated",
-            Trigger::ContextChanged { .. } => "ContextChanged",
-            Trigger::LibraryConfigFailed { .. } => "LibraryConfigFailed",
-            Trigger::TuningAllowed => "TuningAllowed",
+            Trigger::SpecChanged => Reason::SpecChanged,
+            Trigger::ConstraintViolated { .. } => Reason::ConstraintViolated,
+            Trigger::ContextChanged { .. } => Reason::ContextChanged,
+            Trigger::LibraryConfigFailed { .. } => Reason::LibraryConfigFailed,
+            Trigger::TuningAllowed => Reason::TuningAllowed,
         }
     }
 

@@ -9,7 +9,7 @@ use std::collections::BTreeSet;
 use configbot_api::graph::Graph;
 use configbot_api::measure::MeasureReport;
 use configbot_manifests::performance_spec::RemediationAction;
-use configbot_manifests::{ProfileContext, ProfileTrial, ResourceConfig, RobotStack};
+use configbot_manifests::{ProfileContext, ProfileTrial, Reason, ResourceConfig, RobotStack};
 use configbot_optimizer::Observation;
 
 use super::knobs::KnobSpace;
@@ -195,7 +195,7 @@ fn back_off(
         && let Some(y) = run.knobs.backed_off(&x, next)
     {
         out.push(normal(
-            "BackingOff",
+            Reason::BackingOff,
             format!(
                 "verifying trial {index} with its non-core knobs at {:.0} % of the way from their minimum, for a margin from the core constraints",
                 next * 100.0
@@ -242,7 +242,7 @@ pub fn remediate(env: &Env<'_>, ctx: Option<&ProfileContext>, out: &mut Vec<Outp
         apps,
     };
     out.push(warning(
-        "Remediated",
+        Reason::Remediated,
         format!(
             "a core constraint is violated, no known config holds and tuning is not allowed now: {} {} and lifting CPU limits of core nodes; relearning is queued until tuning is allowed",
             if remedy.freeze { "freezing" } else { "stopping" },
@@ -315,7 +315,7 @@ pub fn after_tip(
     }
     let next = super::search::best_trial(run)?;
     out.push(normal(
-        "VerifyingNextBest",
+        Reason::VerifyingNextBest,
         format!(
             "the config of {held} held its verification, then tipped; verifying trial {next}, the next best, before relearning"
         ),
@@ -366,7 +366,7 @@ pub fn verified(
     let sat = eval.satisfaction;
     if sat >= SATISFIED && eval.feasible {
         out.push(normal(
-            "Satisfied",
+            Reason::Satisfied,
             format!(
                 "config from {} holds: satisfaction {:.1} %, objective {}",
                 match &candidate {
@@ -413,7 +413,7 @@ pub fn verified(
     match candidate {
         Candidate::Trial { index } => {
             out.push(warning(
-                "VerificationFailed",
+                Reason::VerificationFailed,
                 format!("trial {index} {}", shortfall(defs, &eval)),
             ));
             run.rejected.push(index);
@@ -428,7 +428,7 @@ pub fn verified(
         }
         Candidate::Backoff { index, fraction } => {
             out.push(warning(
-                "VerificationFailed",
+                Reason::VerificationFailed,
                 format!(
                     "trial {index} backed off to {:.0} % {}",
                     fraction * 100.0,
@@ -440,7 +440,7 @@ pub fn verified(
         Candidate::Baseline => {
             if env.tuning_allowed {
                 let (config, reason) = unsat_reason(run, defs);
-                out.push(warning("Unsat", reason.clone()));
+                out.push(warning(Reason::Unsat, reason.clone()));
                 run.reason = Some(reason);
                 State::UnsatApply { config }
             } else {

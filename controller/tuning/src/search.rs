@@ -6,7 +6,7 @@
 
 use configbot_api::graph::Graph;
 use configbot_api::measure::MeasureReport;
-use configbot_manifests::{ConfigProfile, ResourceConfig};
+use configbot_manifests::{ConfigProfile, Reason, ResourceConfig};
 use configbot_optimizer::{Optimizer, Proposal, SafetyFloor, Settings};
 
 use super::knobs::{self, KnobSpace};
@@ -37,7 +37,7 @@ pub(crate) fn settled(
     if waited > min + 0.5 {
         let still = settle::moving(defs, &all);
         out.push(normal(
-            "SettledLate",
+            Reason::SettledLate,
             format!(
                 "the config settled after {waited:.0} s, not {min:.0} s: core metrics recovered from the previous config{}",
                 if still.is_empty() {
@@ -66,7 +66,7 @@ pub(crate) fn baseline_done(
     run.knobs = match knobs::derive(&env.stack.spec, env.spec, graph, &rates, env.cpus) {
         Ok(k) => k,
         Err(e) => {
-            out.push(warning("KnobsInvalid", e.to_string()));
+            out.push(warning(Reason::KnobsInvalid, e.to_string()));
             KnobSpace::default()
         }
     };
@@ -81,7 +81,7 @@ pub(crate) fn baseline_done(
         .map(|g| format!("({})", g.join(" + ")))
         .collect();
     out.push(normal(
-        "Baseline",
+        Reason::Baseline,
         format!(
             "baseline: satisfaction {:.1} %, {} knobs: {}{}{}",
             eval.satisfaction * 100.0,
@@ -139,14 +139,14 @@ pub(crate) fn baseline_done(
     let problem = match problem(&run.knobs, defs, env) {
         Ok(p) => p,
         Err(e) => {
-            out.push(warning("KnobsInvalid", e));
+            out.push(warning(Reason::KnobsInvalid, e));
             return finish(run, env, defs, out);
         }
     };
     let all_safe = every_config_as_safe_as(&run.knobs, &rec.x);
     if all_safe && env.spec.tuning.safety_floor.is_some() {
         out.push(normal(
-            "SafeExplorationOff",
+            Reason::SafeExplorationOff,
             "every knob only restricts non-core apps and the baseline restricts none: \
              no config can starve a core service more than the baseline did"
                 .to_string(),
@@ -175,7 +175,7 @@ pub(crate) fn baseline_done(
         .unwrap_or_default();
     if !priors.is_empty() {
         out.push(normal(
-            "WarmStart",
+            Reason::WarmStart,
             format!(
                 "relearning warm-started from {} library trials",
                 priors.len()
@@ -188,7 +188,7 @@ pub(crate) fn baseline_done(
     match opt {
         Ok(o) => run.optimizer = Some(o),
         Err(e) => {
-            out.push(warning("OptimizerFailed", e.to_string()));
+            out.push(warning(Reason::OptimizerFailed, e.to_string()));
             return finish(run, env, defs, out);
         }
     }
@@ -217,7 +217,7 @@ fn corner_first(
     out: &mut Vec<Output>,
 ) -> State {
     out.push(normal(
-        "FeasibilityFirst",
+        Reason::FeasibilityFirst,
         format!("the baseline misses a core target: measuring {what}"),
     ));
     run.corner_trial = Some(run.trials.len());
@@ -277,10 +277,10 @@ pub(crate) fn record_trial(
     if let Some(o) = &mut run.optimizer
         && let Err(e) = o.tell(observation(&rec))
     {
-        out.push(warning("OptimizerFailed", e.to_string()));
+        out.push(warning(Reason::OptimizerFailed, e.to_string()));
     }
     out.push(normal(
-        "Trial",
+        Reason::Trial,
         format!(
             "trial {}: satisfaction {:.1} %, objective {}, {}{}",
             run.trials.len(),
@@ -318,7 +318,7 @@ pub(crate) fn next_trial(
         let reason = format!(
             "even the most restrictive config (trial {i}: every non-core knob at its minimum) misses a core target, so no config can meet it. {reason}"
         );
-        out.push(warning("Unsat", reason.clone()));
+        out.push(warning(Reason::Unsat, reason.clone()));
         run.reason = Some(reason);
         return State::UnsatApply { config };
     }
@@ -326,7 +326,7 @@ pub(crate) fn next_trial(
         && all_capped(&run.trials[i])
     {
         out.push(normal(
-            "ObjectivesCapped",
+            Reason::ObjectivesCapped,
             format!(
                 "trial {i} meets every core target and every objective at its cap: nothing left to gain, verifying"
             ),
@@ -342,10 +342,11 @@ pub(crate) fn next_trial(
                 let x = run.knobs.from_config(&config);
                 return drain_first(run, env, State::TrialApply { x, config });
             }
-            Ok(Proposal::Stop(r)) => {
-                out.push(normal("TuningStopped", format!("optimizer stopped: {r:?}")))
-            }
-            Err(e) => out.push(warning("OptimizerFailed", e.to_string())),
+            Ok(Proposal::Stop(r)) => out.push(normal(
+                Reason::TuningStopped,
+                format!("optimizer stopped: {r:?}"),
+            )),
+            Err(e) => out.push(warning(Reason::OptimizerFailed, e.to_string())),
         }
     }
     finish(run, env, defs, out)
@@ -461,7 +462,7 @@ pub(crate) fn finish(
         };
     }
     let (config, reason) = unsat_reason(run, defs);
-    out.push(warning("Unsat", reason.clone()));
+    out.push(warning(Reason::Unsat, reason.clone()));
     run.reason = Some(reason);
     State::UnsatApply { config }
 }

@@ -5,22 +5,13 @@
 
 use configbot_manifests::meta::{condition_types as ct, set_condition};
 use configbot_manifests::performance_spec::TrialStatus;
-use configbot_manifests::{Condition, ConditionStatus, PerformanceSpecStatus};
+use configbot_manifests::{Condition, ConditionStatus, PerformanceSpecStatus, Reason};
 
 use super::machine::{Candidate, Run, State, TrialRecord};
 use super::measure::MetricDef;
 
 /// Condition type written by the tuning loop: the run's outcome.
 pub const TUNED: &str = "Tuned";
-
-/// Reasons of the `Ready` and `Tuned` conditions.
-pub mod reasons {
-    pub const TUNING: &str = "Tuning";
-    pub const SATISFIED: &str = "Satisfied";
-    pub const UNSAT: &str = "Unsat";
-    pub const REMEDIATING: &str = "Remediating";
-    pub const LIBRARY: &str = "LibraryConfig";
-}
 
 fn trial_status(index: usize, t: &TrialRecord) -> TrialStatus {
     TrialStatus {
@@ -44,7 +35,7 @@ pub fn status(
     now: &str,
 ) -> PerformanceSpecStatus {
     let mut s = old.clone();
-    s.phase = run.phase().into();
+    s.phase = run.phase();
     s.trials = run.trials.len() as u32;
     s.max_trials = Some(max_trials);
     s.knobs = run.knobs.status();
@@ -101,7 +92,7 @@ pub fn status(
             Condition {
                 type_: type_.into(),
                 status,
-                reason: reason.into(),
+                reason,
                 message,
                 last_transition_time: now.into(),
                 observed_generation: generation,
@@ -111,7 +102,7 @@ pub fn status(
     s
 }
 
-type Cond = (ConditionStatus, &'static str, String);
+type Cond = (ConditionStatus, Reason, String);
 
 fn conditions(run: &Run) -> (Cond, Cond) {
     use ConditionStatus::{False, True, Unknown};
@@ -122,26 +113,26 @@ fn conditions(run: &Run) -> (Cond, Cond) {
         } => {
             let from = match &run.applied {
                 Some(Candidate::Library { profile }) => (
-                    reasons::LIBRARY,
+                    Reason::LibraryConfig,
                     format!("re-applied library profile {}", profile.metadata.name),
                 ),
                 Some(Candidate::Trial { index }) => (
-                    reasons::SATISFIED,
+                    Reason::Satisfied,
                     format!("applied the best trial ({index})"),
                 ),
                 Some(Candidate::Backoff { index, fraction }) => (
-                    reasons::SATISFIED,
+                    Reason::Satisfied,
                     format!(
                         "applied the best trial ({index}) with its non-core knobs backed off to {:.0} %",
                         fraction * 100.0
                     ),
                 ),
-                _ => (reasons::SATISFIED, "the current config holds".to_string()),
+                _ => (Reason::Satisfied, "the current config holds".to_string()),
             };
             (
                 (
                     True,
-                    reasons::SATISFIED,
+                    Reason::Satisfied,
                     "core constraints hold; monitoring".into(),
                 ),
                 (True, from.0, from.1),
@@ -151,8 +142,8 @@ fn conditions(run: &Run) -> (Cond, Cond) {
             satisfied: false, ..
         }
         | State::UnsatApply { .. } => (
-            (False, reasons::UNSAT, reason.clone()),
-            (False, reasons::UNSAT, reason),
+            (False, Reason::Unsat, reason.clone()),
+            (False, Reason::Unsat, reason),
         ),
         State::RemediatePause { remedy }
         | State::RemediateApply { remedy }
@@ -160,7 +151,7 @@ fn conditions(run: &Run) -> (Cond, Cond) {
         | State::RemediateUndo { remedy } => (
             (
                 False,
-                reasons::REMEDIATING,
+                Reason::Remediating,
                 format!(
                     "non-core apps {} until tuning is allowed",
                     if remedy.freeze { "frozen" } else { "stopped" }
@@ -168,19 +159,19 @@ fn conditions(run: &Run) -> (Cond, Cond) {
             ),
             (
                 Unknown,
-                reasons::REMEDIATING,
+                Reason::Remediating,
                 "relearning queued until tuning is allowed".into(),
             ),
         ),
         _ => (
             (
                 Unknown,
-                reasons::TUNING,
+                Reason::Tuning,
                 format!("{} in progress", run.phase()),
             ),
             (
                 Unknown,
-                reasons::TUNING,
+                Reason::Tuning,
                 format!("{} trials measured", run.trials.len()),
             ),
         ),

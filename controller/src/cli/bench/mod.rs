@@ -22,7 +22,10 @@ use std::process::ExitCode;
 use std::time::{Duration, Instant};
 
 use clap::Args;
-use configbot_manifests::{Kind, PerformanceSpec, RobotStack};
+use configbot_manifests::performance_spec::TrialStatus;
+use configbot_manifests::{
+    Kind, PerformanceSpec, PerformanceSpecStatus, Phase, RobotStack, decode_status,
+};
 use serde::Serialize;
 use serde_json::Value;
 
@@ -124,22 +127,22 @@ pub struct MethodResult {
 #[derive(Debug, Clone, Serialize)]
 #[serde(rename_all = "camelCase")]
 pub struct TuningCost {
-    pub phase: String,
-    pub trials: u64,
+    pub phase: Phase,
+    pub trials: u32,
     /// 1-based trial number of the first feasible trial.
-    pub first_feasible_trial: Option<u64>,
+    pub first_feasible_trial: Option<u32>,
     /// When the first feasible trial's measurement was done.
     pub first_feasible_seconds: Option<f64>,
     /// 1-based trial number of the config finally applied.
-    pub final_trial: Option<u64>,
+    pub final_trial: Option<u32>,
     /// When the final config's trial was measured.
     pub final_trial_seconds: Option<f64>,
     /// When the run settled: the final config applied and verified
     /// (Monitoring), or Unsat.
     pub final_config_seconds: f64,
-    pub trial_history: Value,
+    pub trial_history: Vec<TrialStatus>,
     /// Indices of trials whose config failed verification (status `rejectedTrials`).
-    pub rejected_trials: Vec<u64>,
+    pub rejected_trials: Vec<u32>,
 }
 
 /// Status poll interval while following a tuning run.
@@ -147,34 +150,32 @@ pub const POLL: Duration = Duration::from_millis(200);
 
 /// The cost of a run from its settled status, the seconds at which each
 /// trial first appeared in the status (by index) and when it settled (pure).
-pub fn tuning_cost(status: &Value, seen: &[f64], settled_secs: f64) -> TuningCost {
-    let history = status["trialHistory"].clone();
-    let first_feasible = history
-        .as_array()
-        .into_iter()
-        .flatten()
-        .find(|t| t["feasible"].as_bool() == Some(true))
-        .and_then(|t| t["index"].as_u64());
-    let best = status["bestTrial"].as_u64();
-    let at = |i: Option<u64>| i.and_then(|i| seen.get(i as usize).copied());
+pub fn tuning_cost(status: &PerformanceSpecStatus, seen: &[f64], settled_secs: f64) -> TuningCost {
+    let first_feasible = status
+        .trial_history
+        .iter()
+        .find(|t| t.feasible)
+        .map(|t| t.index);
+    let best = status.best_trial;
+    let at = |i: Option<u32>| i.and_then(|i| seen.get(i as usize).copied());
     TuningCost {
-        phase: status["phase"].as_str().unwrap_or("").into(),
-        trials: status["trials"].as_u64().unwrap_or(0),
+        phase: status.phase.clone(),
+        trials: status.trials,
         first_feasible_trial: first_feasible.map(|i| i + 1),
         first_feasible_seconds: at(first_feasible),
         final_trial: best.map(|i| i + 1),
         final_trial_seconds: at(best),
         final_config_seconds: settled_secs,
-        trial_history: history,
-        rejected_trials: crate::report::progress::rejected(status),
+        trial_history: status.trial_history.clone(),
+        rejected_trials: status.rejected_trials.clone(),
     }
 }
 
 /// Whether the run has reached its outcome with the config it keeps applied:
 /// the demo's settled check, and for Unsat also the safest config applied
 /// (status shows it as `bestConfig` once it is monitored) (pure).
-pub fn outcome(st: &Value) -> bool {
-    settled(st) && st["bestConfig"].is_object()
+pub fn outcome(st: &PerformanceSpecStatus) -> bool {
+    settled(st) && st.best_config.is_some()
 }
 
 /// Follows a spec's tuning run from `started` (when it was applied):
@@ -185,15 +186,14 @@ pub async fn follow(
     name: &str,
     started: Instant,
     timeout: Duration,
-) -> anyhow::Result<(Value, Vec<f64>, f64)> {
+) -> anyhow::Result<(PerformanceSpecStatus, Vec<f64>, f64)> {
     let path = crate::client::path(Kind::PerformanceSpec, Some("default"), Some(name));
     let mut seen: Vec<f64> = Vec::new();
     loop {
         let obj = robot.client.get(&path).await?;
         let now = started.elapsed().as_secs_f64();
-        let st = obj["status"].clone();
-        let trials = st["trialHistory"].as_array().cloned().unwrap_or_default();
-        for t in trials.iter().skip(seen.len()) {
+        let st: PerformanceSpecStatus = decode_status(&obj)?;
+        for t in st.trial_history.iter().skip(seen.len()) {
             print_trial(&st, t);
             seen.push(now);
         }
@@ -204,7 +204,7 @@ pub async fn follow(
             started.elapsed() < timeout,
             "{name}: tuning did not finish within {} s (phase {:?})",
             timeout.as_secs(),
-            st["phase"].as_str().unwrap_or("")
+            st.phase.as_str()
         );
         tokio::time::sleep(POLL).await;
     }
@@ -611,7 +611,7 @@ async fn tuned(
             method,
             defs,
             &r,
-            st["bestConfig"].clone(),
+            serde_json::to_value(&st.best_config)?,
             Some(cost),
         ))
     }
@@ -621,7 +621,7 @@ async fn tuned(
 }
 
 /// `trial 3 @ 21 s` (or `-`).
-fn at_trial(trial: Option<u64>, secs: Option<f64>) -> String {
+fn at_trial(trial: Option<u32>, secs: Option<f64>) -> String {
     match (trial, secs) {
         (Some(t), Some(s)) => format!("{t} @ {s:.0} s"),
         (Some(t), None) => format!("{t}"),
@@ -676,8 +676,7 @@ fn write_plots(
 ) -> anyhow::Result<()> {
     let of = |m: &str| results.iter().find(|r| r.stack == name && r.method == m);
     if let Some(t) = of("configbot").and_then(|r| r.tuning.as_ref()) {
-        let trials = t.trial_history.as_array().cloned().unwrap_or_default();
-        let mut c = crate::report::progress::chart(&trials, &t.rejected_trials);
+        let mut c = crate::report::progress::chart(&t.trial_history, &t.rejected_trials);
         c.title = format!("{name}: tuning progress");
         std::fs::write(out.join(format!("{name}-progress.svg")), c.to_svg())?;
     }
@@ -704,20 +703,36 @@ fn write_plots(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use serde_json::json;
 
-    fn settled_status() -> Value {
-        json!({"phase": "Monitoring", "trials": 4, "bestTrial": 3, "bestConfig": {},
-            "rejectedTrials": [1],
-            "trialHistory": [
-                {"index": 0, "feasible": false}, {"index": 1, "feasible": true},
-                {"index": 2, "feasible": false}, {"index": 3, "feasible": true}]})
+    fn trial(index: u32, feasible: bool) -> TrialStatus {
+        TrialStatus {
+            index,
+            feasible,
+            ..TrialStatus::default()
+        }
+    }
+
+    fn settled_status() -> PerformanceSpecStatus {
+        PerformanceSpecStatus {
+            phase: Phase::Monitoring,
+            trials: 4,
+            best_trial: Some(3),
+            best_config: Some(Default::default()),
+            rejected_trials: vec![1],
+            trial_history: vec![
+                trial(0, false),
+                trial(1, true),
+                trial(2, false),
+                trial(3, true),
+            ],
+            ..PerformanceSpecStatus::default()
+        }
     }
 
     #[test]
     fn cost_takes_trial_numbers_and_seconds_from_the_status() {
         let c = tuning_cost(&settled_status(), &[4.0, 9.4, 14.0, 19.2], 30.0);
-        assert_eq!(c.phase, "Monitoring");
+        assert_eq!(c.phase, Phase::Monitoring);
         assert_eq!(c.trials, 4);
         assert_eq!(
             (c.first_feasible_trial, c.first_feasible_seconds),
@@ -730,11 +745,13 @@ mod tests {
         assert_eq!(c.final_config_seconds, 30.0);
         assert_eq!(c.rejected_trials, [1]);
         // Unsat: no best trial, no feasible one.
-        let u = tuning_cost(
-            &json!({"phase": "Unsat", "trials": 1, "trialHistory": [{"index": 0, "feasible": false}]}),
-            &[3.0],
-            8.0,
-        );
+        let unsat = PerformanceSpecStatus {
+            phase: Phase::Unsat,
+            trials: 1,
+            trial_history: vec![trial(0, false)],
+            ..PerformanceSpecStatus::default()
+        };
+        let u = tuning_cost(&unsat, &[3.0], 8.0);
         assert_eq!((u.first_feasible_trial, u.final_trial), (None, None));
         assert_eq!(
             (u.first_feasible_seconds, u.final_trial_seconds),
@@ -744,10 +761,18 @@ mod tests {
 
     #[test]
     fn unsat_is_an_outcome_once_its_config_is_applied() {
+        let status = |phase: Phase, best_config: Option<configbot_manifests::ResourceConfig>| {
+            PerformanceSpecStatus {
+                phase,
+                best_config,
+                ..PerformanceSpecStatus::default()
+            }
+        };
         assert!(outcome(&settled_status()));
-        assert!(!outcome(&json!({"phase": "Unsat"})));
-        assert!(outcome(&json!({"phase": "Unsat", "bestConfig": {}})));
-        assert!(!outcome(&json!({"phase": "Trials", "bestConfig": {}})));
+        assert!(!outcome(&status(Phase::Unsat, None)));
+        assert!(outcome(&status(Phase::Unsat, Some(Default::default()))));
+        // Still measuring trials: a best config left from before is no outcome.
+        assert!(!outcome(&status(Phase::Tuning, Some(Default::default()))));
     }
 
     #[test]

@@ -15,6 +15,7 @@
 mod live;
 
 use configbot_api::measure::MeasureReport;
+use configbot_manifests::{Phase, Reason};
 use serde::Serialize;
 
 pub use self::live::run;
@@ -29,12 +30,12 @@ pub struct Sample {
     pub t: f64,
     pub spec: String,
     pub uid: String,
-    pub phase: String,
+    pub phase: Phase,
     pub context: Option<String>,
     pub settled: bool,
     /// Reason of the `Tuned` condition (`LibraryConfig` when reused).
-    pub tuned_reason: Option<String>,
-    pub trials: u64,
+    pub tuned_reason: Option<Reason>,
+    pub trials: u32,
 }
 
 /// A tuning event, as first seen.
@@ -43,7 +44,7 @@ pub struct Sample {
 pub struct SeenEvent {
     pub t: f64,
     pub spec: String,
-    pub reason: String,
+    pub reason: Reason,
     pub message: String,
 }
 
@@ -80,8 +81,9 @@ pub struct Moments {
     pub settle_seconds: Option<f64>,
     /// The library config was re-applied (no trials).
     pub reused: bool,
-    pub trials: u64,
-    pub phase: String,
+    pub trials: u32,
+    /// The phase it settled in (none when it did not settle).
+    pub phase: Option<Phase>,
 }
 
 /// Share of satisfied seconds between two moments.
@@ -145,7 +147,7 @@ pub fn moments(samples: &[Sample], events: &[SeenEvent], spec: &str, w: Switch) 
     };
     let hit = events
         .iter()
-        .any(|e| e.spec == spec && e.t >= spec_applied && e.reason == "LibraryHit");
+        .any(|e| e.spec == spec && e.t >= spec_applied && e.reason == Reason::LibraryHit);
     Moments {
         spec: spec.into(),
         at,
@@ -155,9 +157,9 @@ pub fn moments(samples: &[Sample], events: &[SeenEvent], spec: &str, w: Switch) 
         applied: done.map(|s| s.t),
         detection_seconds: detected.map(|d| d - spec_applied),
         settle_seconds: done.map(|s| s.t - at),
-        reused: hit && done.is_some_and(|s| s.tuned_reason.as_deref() == Some("LibraryConfig")),
+        reused: hit && done.is_some_and(|s| s.tuned_reason == Some(Reason::LibraryConfig)),
         trials: done.map_or(0, |s| s.trials),
-        phase: done.map_or(String::new(), |s| s.phase.clone()),
+        phase: done.map(|s| s.phase.clone()),
     }
 }
 
@@ -302,11 +304,7 @@ pub fn summary(t: &Timeline) -> String {
             },
             opt(m.settle_seconds),
             m.trials,
-            if m.phase.is_empty() {
-                "not settled"
-            } else {
-                &m.phase
-            },
+            m.phase.as_ref().map_or("not settled", Phase::as_str),
         ));
     }
     for s in &t.segments {
@@ -332,24 +330,30 @@ mod tests {
 
     use super::*;
 
-    fn sample(t: f64, spec: &str, phase: &str, ctx: Option<&str>, reason: Option<&str>) -> Sample {
+    fn sample(
+        t: f64,
+        spec: &str,
+        phase: Phase,
+        ctx: Option<&str>,
+        reason: Option<Reason>,
+    ) -> Sample {
         Sample {
             t,
             spec: spec.into(),
             uid: "u".into(),
-            phase: phase.into(),
+            settled: matches!(phase, Phase::Monitoring | Phase::Unsat),
+            phase,
             context: ctx.map(str::to_string),
-            settled: phase == "Monitoring" || phase == "Unsat",
-            tuned_reason: reason.map(str::to_string),
+            tuned_reason: reason,
             trials: 3,
         }
     }
 
-    fn ev(t: f64, spec: &str, reason: &str) -> SeenEvent {
+    fn ev(t: f64, spec: &str, reason: Reason) -> SeenEvent {
         SeenEvent {
             t,
             spec: spec.into(),
-            reason: reason.into(),
+            reason,
             message: String::new(),
         }
     }
@@ -357,27 +361,40 @@ mod tests {
     #[test]
     fn moments_come_from_the_samples_after_the_switch() {
         let samples = vec![
-            sample(1.0, "basic", "Baseline", Some("b"), None),
-            sample(20.0, "basic", "Monitoring", Some("b"), Some("Satisfied")),
-            sample(50.4, "terrain", "Baseline", Some("t-partial"), None),
-            sample(51.0, "terrain", "Baseline", Some("t"), None),
-            sample(80.0, "terrain", "Monitoring", Some("t"), Some("Satisfied")),
+            sample(1.0, "basic", Phase::Baseline, Some("b"), None),
+            sample(
+                20.0,
+                "basic",
+                Phase::Monitoring,
+                Some("b"),
+                Some(Reason::Satisfied),
+            ),
+            sample(50.4, "terrain", Phase::Baseline, Some("t-partial"), None),
+            sample(51.0, "terrain", Phase::Baseline, Some("t"), None),
+            sample(
+                80.0,
+                "terrain",
+                Phase::Monitoring,
+                Some("t"),
+                Some(Reason::Satisfied),
+            ),
+            // The library config applied and being verified: not settled yet.
             sample(
                 100.2,
                 "basic",
-                "Verifying",
+                Phase::Satisfied,
                 Some("b"),
-                Some("LibraryConfig"),
+                Some(Reason::LibraryConfig),
             ),
             sample(
                 106.0,
                 "basic",
-                "Monitoring",
+                Phase::Monitoring,
                 Some("b"),
-                Some("LibraryConfig"),
+                Some(Reason::LibraryConfig),
             ),
         ];
-        let events = vec![ev(100.2, "basic", "LibraryHit")];
+        let events = vec![ev(100.2, "basic", Reason::LibraryHit)];
         let w = |at: f64, up: f64| Switch {
             at,
             stack_up: up,
@@ -395,17 +412,14 @@ mod tests {
             Some(31.0),
             "from the switch, not the spec"
         );
-        assert_eq!(t.phase, "Monitoring");
+        assert_eq!(t.phase, Some(Phase::Monitoring));
         // Back: only samples after the second switch count.
         let b = moments(&samples, &events, "basic", w(99.0, 100.0));
         assert_eq!((b.detected, b.applied), (Some(100.2), Some(106.0)));
         assert!(b.reused);
         // Never settled: no applied moment, the first context seen is the detection.
         let n = moments(&samples[..4], &[], "terrain", w(50.0, 50.0));
-        assert_eq!(
-            (n.detected, n.applied, n.phase.as_str()),
-            (Some(50.4), None, "")
-        );
+        assert_eq!((n.detected, n.applied, n.phase), (Some(50.4), None, None));
     }
 
     #[test]
@@ -457,7 +471,7 @@ mod tests {
             settle_seconds: None,
             reused,
             trials: 0,
-            phase: String::new(),
+            phase: None,
         };
         let t = Timeline {
             core_metric: "cmd".into(),

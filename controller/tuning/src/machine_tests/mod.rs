@@ -151,10 +151,10 @@ fn name(s: &State) -> &'static str {
     }
 }
 
-fn reasons(out: &[Output]) -> Vec<&'static str> {
+fn reasons(out: &[Output]) -> Vec<&str> {
     out.iter()
         .map(|o| match o {
-            Output::Event { reason, .. } => *reason,
+            Output::Event { reason, .. } => reason.as_str(),
             Output::SaveProfile(_) => "<save>",
         })
         .collect()

@@ -342,7 +342,7 @@ fn with_an_adaptive_settle_configs_are_applied_after_a_drain_of_the_non_core_app
         "core knobs as in the candidate"
     );
     assert_eq!(config.adaptors[0].rate_hz, 0.5, "non-core input held back");
-    assert_eq!(run.phase(), "Satisfied");
+    assert_eq!(run.phase(), configbot_manifests::Phase::Satisfied);
     let drain = config.clone();
     assert_eq!(effect(&run, &env), Effect::Apply(drain.clone()));
     let (run, _) = step(run, Input::Applied, &env);

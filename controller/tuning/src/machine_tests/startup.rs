@@ -2,6 +2,8 @@
 //! declared nodes have registered and the metrics' topics flow, or the
 //! start-up timeout passed (then an event names what never came up).
 
+use configbot_manifests::{Phase, Reason};
+
 use super::*;
 
 /// The graph without `absent`'s node and the topics it publishes.
@@ -26,7 +28,7 @@ fn observed_graph(g: Graph) -> Input {
 fn run_start_up(
     env: &Env<'_>,
     robot: impl Fn(u64) -> (Graph, [f64; 1], f64),
-) -> (Run, Vec<&'static str>, Vec<String>, u64) {
+) -> (Run, Vec<Reason>, Vec<String>, u64) {
     let mut run = Run::new(1, Trigger::SpecChanged);
     let (mut t, mut events, mut messages) = (0u64, Vec::new(), Vec::new());
     while name(&run.state) == "StartUp" {
@@ -51,7 +53,7 @@ fn run_start_up(
                 reason, message, ..
             } = o
             {
-                events.push(*reason);
+                events.push(reason.clone());
                 messages.push(message.clone());
             }
         }
@@ -76,13 +78,13 @@ fn a_stack_whose_nodes_take_10_s_to_register_gets_no_verdict_before_they_do() {
         t >= 12_000,
         "left start-up at {t} ms, before the detector published"
     );
-    assert_eq!(events, vec!["StackUp"]);
+    assert_eq!(events, vec![Reason::StackUp]);
     assert_eq!(name(&run.state), "Observe");
     assert!(run.baseline.is_none() && run.trials.is_empty() && run.reason.is_none());
     // Then the run observes the full graph and measures its baseline.
     let (run, _) = step(run, observed(false), &env);
     assert_eq!(name(&run.state), "Baseline");
-    assert_eq!(run.phase(), "Baseline");
+    assert_eq!(run.phase(), Phase::Baseline);
 }
 
 #[test]
@@ -93,7 +95,7 @@ fn a_node_that_never_registers_is_named_when_the_start_up_times_out() {
     let (run, events, messages, t) =
         run_start_up(&env, |_| (graph_without("/detector"), [40.0], 0.0));
     assert!((30_000..=32_000).contains(&t), "{t}");
-    assert_eq!(events, vec!["StartupTimeout"]);
+    assert_eq!(events, vec![Reason::StartupTimeout]);
     assert!(
         messages[0].contains("never registered: /detector")
             && messages[0].contains("no messages on the topics of det"),
@@ -114,5 +116,5 @@ fn a_silent_non_core_topic_delays_the_run_by_the_grace_only() {
             .contains(&t),
         "{t}"
     );
-    assert_eq!(events, vec!["StackUp"]);
+    assert_eq!(events, vec![Reason::StackUp]);
 }

@@ -11,7 +11,8 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use configbot_api::measure::MeasureReport;
-use configbot_manifests::Kind;
+use configbot_manifests::{Kind, PerformanceSpecStatus, decode_status};
+use configbot_tuning::status::TUNED;
 use hyper::Method;
 
 use super::{Sample, SeenEvent, Switch, Timeline, chart, moments, seconds, segments};
@@ -69,20 +70,22 @@ async fn watch(
             let Ok(Some(o)) = store.get(Kind::PerformanceSpec, "default", name) else {
                 continue;
             };
-            let st = &o["status"];
+            let Ok(st) = decode_status::<PerformanceSpecStatus>(&o) else {
+                continue;
+            };
             let s = Sample {
                 t,
                 spec: name.clone(),
                 uid: o["metadata"]["uid"].as_str().unwrap_or("").into(),
-                phase: st["phase"].as_str().unwrap_or("").into(),
-                context: st["context"].as_str().map(str::to_string),
-                settled: outcome(st),
-                tuned_reason: st["conditions"]
-                    .as_array()
-                    .and_then(|c| c.iter().find(|c| c["type"] == "Tuned"))
-                    .and_then(|c| c["reason"].as_str())
-                    .map(str::to_string),
-                trials: st["trials"].as_u64().unwrap_or(0),
+                settled: outcome(&st),
+                tuned_reason: st
+                    .conditions
+                    .iter()
+                    .find(|c| c.type_ == TUNED)
+                    .map(|c| c.reason.clone()),
+                trials: st.trials,
+                phase: st.phase,
+                context: st.context,
             };
             let changed = last.get(name).is_none_or(|p| {
                 Sample {
