@@ -53,7 +53,7 @@ impl Jitter for XorShift {
     }
 }
 
-/// Exponential backoff: `initial`, doubling per call of [`Backoff::next`],
+/// Exponential backoff: `initial`, doubling per call of [`Backoff::next_delay`],
 /// capped at `max`; [`Backoff::reset`] after a success starts over. With a
 /// jitter spread `s`, each delay is its base times a factor in
 /// `[1 - s, 1 + s]`, and still never above `max`.
@@ -87,7 +87,7 @@ impl<J: Jitter> Backoff<J> {
     }
 
     /// The delay before the next retry; each call doubles the base.
-    pub fn next(&mut self) -> Duration {
+    pub fn next_delay(&mut self) -> Duration {
         let base = self
             .initial
             .saturating_mul(1u32 << self.attempt.min(20))
@@ -123,15 +123,15 @@ mod tests {
     #[test]
     fn without_jitter_it_doubles_caps_and_resets() {
         let mut b = Backoff::new(Duration::from_millis(100), Duration::from_millis(1000));
-        let got: Vec<u128> = (0..6).map(|_| ms(b.next())).collect();
+        let got: Vec<u128> = (0..6).map(|_| ms(b.next_delay())).collect();
         assert_eq!(got, [100, 200, 400, 800, 1000, 1000]);
         assert_eq!(b.attempts(), 6);
         b.reset();
-        assert_eq!((b.attempts(), ms(b.next())), (0, 100));
+        assert_eq!((b.attempts(), ms(b.next_delay())), (0, 100));
         for _ in 0..100 {
-            b.next();
+            b.next_delay();
         }
-        assert_eq!(ms(b.next()), 1000);
+        assert_eq!(ms(b.next_delay()), 1000);
     }
 
     #[test]
@@ -147,12 +147,12 @@ mod tests {
         ];
         for (sample, want) in table {
             let mut b = Backoff::jittered(initial, max, 0.25, move || sample);
-            let got: Vec<u128> = (0..7).map(|_| ms(b.next())).collect();
+            let got: Vec<u128> = (0..7).map(|_| ms(b.next_delay())).collect();
             assert_eq!(got, want, "sample {sample}");
         }
         // Samples out of range are clamped.
         let mut b = Backoff::jittered(initial, max, 0.25, || 7.0);
-        assert_eq!(ms(b.next()), 1000);
+        assert_eq!(ms(b.next_delay()), 1000);
     }
 
     #[test]
@@ -164,7 +164,7 @@ mod tests {
             0.5,
             move || samples.next().unwrap_or(0.5),
         );
-        let got: Vec<u128> = (0..4).map(|_| ms(b.next())).collect();
+        let got: Vec<u128> = (0..4).map(|_| ms(b.next_delay())).collect();
         assert_eq!(got, [500, 3000, 4000, 8000]);
     }
 

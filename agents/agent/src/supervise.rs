@@ -77,7 +77,7 @@ pub(crate) async fn supervise<S: Supervised>(
         if started.elapsed() >= STABLE_RUN {
             backoff.reset();
         }
-        let delay = backoff.next();
+        let delay = backoff.next_delay();
         node.restarting(delay);
         tokio::select! {
             () = tokio::time::sleep(delay) => {}

@@ -63,7 +63,7 @@ impl Backoffs {
             .or_insert_with(|| {
                 Backoff::jittered(initial, max, 0.25, XorShift::new(seeds.next_u64()))
             })
-            .next()
+            .next_delay()
     }
 
     pub fn reset(&mut self, key: &ObjectKey) {

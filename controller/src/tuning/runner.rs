@@ -167,7 +167,7 @@ pub async fn run_spec(ctx: RunnerCtx, ns: String, name: String) {
                     r.event(false, "TuningError", &e.to_string());
                 }
                 run = keep;
-                let delay = r.backoff.next();
+                let delay = r.backoff.next_delay();
                 r.ctx.clock.sleep(delay).await;
             }
         }
