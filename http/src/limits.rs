@@ -29,8 +29,9 @@ pub const HEADER_TIMEOUT: Duration = Duration::from_secs(30);
 /// How long a client may take to send a request's body.
 pub const BODY_TIMEOUT: Duration = Duration::from_secs(30);
 
-/// Why [`bounded_body`] refused a request body; each server turns it into
-/// its own error body (`From<Refusal>`), with [`Refusal::status`].
+/// Why [`bounded_body`] refused a request body. A server answers it in its
+/// own error format (`From<Refusal>`, with [`Refusal::status`]) or as it is:
+/// `{"error": "<message>"}`, the agent's format.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub enum Refusal {
     /// Over [`MAX_BODY_BYTES`], declared or found while reading: 413.
@@ -56,6 +57,14 @@ impl Refusal {
         match self {
             Self::TooLarge(m) | Self::Unreadable(m) | Self::TooSlow(m) => m,
         }
+    }
+}
+
+impl IntoResponse for Refusal {
+    fn into_response(self) -> Response {
+        let code = self.status();
+        let body = serde_json::json!({ "error": self.into_message() });
+        (code, axum::Json(body)).into_response()
     }
 }
 
@@ -147,22 +156,6 @@ mod tests {
 
     use super::*;
 
-    /// A server's error: its status and `refused: <message>`.
-    struct Refused(Refusal);
-
-    impl From<Refusal> for Refused {
-        fn from(r: Refusal) -> Self {
-            Self(r)
-        }
-    }
-
-    impl IntoResponse for Refused {
-        fn into_response(self) -> Response {
-            let code = self.0.status();
-            (code, format!("refused: {}", self.0.into_message())).into_response()
-        }
-    }
-
     /// A route that echoes its body's length behind [`bounded_body`], with
     /// the extractors' limit raised to the same size as in the API routers.
     fn app() -> Router {
@@ -172,7 +165,7 @@ mod tests {
                 post(|b: axum::body::Bytes| async move { b.len().to_string() }),
             )
             .layer(axum::extract::DefaultBodyLimit::max(MAX_BODY_BYTES))
-            .layer(axum::middleware::from_fn(bounded_body::<Refused>))
+            .layer(axum::middleware::from_fn(bounded_body::<Refusal>))
     }
 
     async fn send(body: Body, length: Option<u64>) -> (StatusCode, String, bool) {
@@ -201,7 +194,7 @@ mod tests {
         assert_eq!((code, close), (StatusCode::PAYLOAD_TOO_LARGE, true));
         assert_eq!(
             body,
-            "refused: request body (3145729 bytes) is larger than the 3145728 byte limit"
+            r#"{"error":"request body (3145729 bytes) is larger than the 3145728 byte limit"}"#
         );
         // No length: found while reading.
         let chunks = futures_util::stream::iter(
@@ -211,7 +204,7 @@ mod tests {
         assert_eq!(code, StatusCode::PAYLOAD_TOO_LARGE, "{body}");
         assert_eq!(
             body,
-            "refused: request body is larger than the 3145728 byte limit"
+            r#"{"error":"request body is larger than the 3145728 byte limit"}"#
         );
     }
 
@@ -224,7 +217,7 @@ mod tests {
         let (code, body, close) = send(Body::from_stream(broken), None).await;
         assert_eq!((code, close), (StatusCode::BAD_REQUEST, true), "{body}");
         assert!(
-            body.starts_with("refused: reading request body: "),
+            body.starts_with(r#"{"error":"reading request body: "#),
             "{body}"
         );
     }
@@ -234,7 +227,7 @@ mod tests {
         let stalled = futures_util::stream::pending::<Result<Vec<u8>, std::io::Error>>();
         let (code, body, close) = send(Body::from_stream(stalled), None).await;
         assert_eq!((code, close), (StatusCode::REQUEST_TIMEOUT, true));
-        assert_eq!(body, "refused: request body not received within 30 s");
+        assert_eq!(body, r#"{"error":"request body not received within 30 s"}"#);
     }
 
     #[tokio::test(start_paused = true)]
