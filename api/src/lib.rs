@@ -8,7 +8,10 @@
 //!   edges (`GET /v1/graph`, the vocabulary of `configbot_dataplane::DataPlane`).
 //! - [`policy`]: the adaptor placement rule the agent and the controller's
 //!   knob space both apply.
+//! - [`backoff`]: the one retry backoff (exponential, capped, optionally
+//!   jittered) of the reconciler, the tuning runner and the agent's restarts.
 
+pub mod backoff;
 pub mod graph;
 pub mod measure;
 pub mod policy;

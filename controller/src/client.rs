@@ -1,14 +1,23 @@
 //! A small HTTP client for the control plane's API over its Unix socket, used
-//! by the CLI and the tests. (Remote access goes through the HTTPS listener,
+//! by the CLI and the tests, on the workspace's one transport
+//! (`configbot_http::client`). (Remote access goes through the HTTPS listener,
 //! with kubectl or any Kubernetes client.)
 
 use std::path::PathBuf;
+use std::time::Duration;
 
+use configbot_http::client as http;
 use http_body_util::{BodyExt, Full};
 use hyper::body::Bytes;
 use hyper::{Method, Request, StatusCode};
-use hyper_util::rt::TokioIo;
 use serde_json::Value;
+
+/// How long connecting to the socket may take (a live server accepts at once).
+const CONNECT_TIMEOUT: Duration = Duration::from_secs(5);
+
+/// The largest answer the CLI reads: a list of every object in the store,
+/// each at most the API's 3 MiB.
+const MAX_RESPONSE_BYTES: usize = 256 << 20;
 
 /// Where the API is.
 #[derive(Debug, Clone)]
@@ -68,22 +77,32 @@ impl Client {
         Client { endpoint }
     }
 
-    async fn connect(
-        &self,
-    ) -> Result<hyper::client::conn::http1::SendRequest<Full<Bytes>>, ClientError> {
-        let err = |source| ClientError::Connect {
-            endpoint: format!("{:?}", self.endpoint),
-            source,
-        };
+    /// The transport's view of where the API is and what it may take.
+    fn transport(&self) -> (http::Endpoint, http::Limits) {
         let Endpoint::Unix(p) = &self.endpoint;
-        let s = tokio::net::UnixStream::connect(p).await.map_err(err)?;
-        let (tx, c) = hyper::client::conn::http1::handshake(TokioIo::new(s))
-            .await
-            .map_err(|e| ClientError::Http(e.to_string()))?;
-        tokio::spawn(async move {
-            let _ = c.await;
-        });
-        Ok(tx)
+        let limits = http::Limits {
+            connect_timeout: CONNECT_TIMEOUT,
+            // Watches stream until the caller has seen enough.
+            response_timeout: None,
+            max_body: MAX_RESPONSE_BYTES,
+        };
+        (http::Endpoint::Unix(p.clone()), limits)
+    }
+
+    /// A transport failure: an unreachable server names its endpoint.
+    fn transport_error(&self, e: http::Error) -> ClientError {
+        let endpoint = format!("{:?}", self.endpoint);
+        match e {
+            http::Error::Connect(source) => ClientError::Connect { endpoint, source },
+            http::Error::ConnectTimeout(t) => ClientError::Connect {
+                endpoint,
+                source: std::io::Error::new(
+                    std::io::ErrorKind::TimedOut,
+                    format!("no connection within {} s", t.as_secs_f64()),
+                ),
+            },
+            e => ClientError::Http(e.to_string()),
+        }
     }
 
     fn request(
@@ -111,19 +130,14 @@ impl Client {
         body: Option<&Value>,
         content_type: &str,
     ) -> Result<Response, ClientError> {
-        let mut sender = self.connect().await?;
         let bytes = body.map(|b| b.to_string().into_bytes()).unwrap_or_default();
-        let resp = sender
-            .send_request(self.request(method, path, content_type, bytes)?)
+        let req = self.request(method, path, content_type, bytes)?;
+        let (endpoint, limits) = self.transport();
+        let resp = http::fetch(&endpoint, req, &limits)
             .await
-            .map_err(|e| ClientError::Http(e.to_string()))?;
+            .map_err(|e| self.transport_error(e))?;
         let status = resp.status();
-        let data = resp
-            .into_body()
-            .collect()
-            .await
-            .map_err(|e| ClientError::Http(e.to_string()))?
-            .to_bytes();
+        let data = resp.into_body();
         let body: Value = serde_json::from_slice(&data)
             .unwrap_or_else(|_| Value::String(String::from_utf8_lossy(&data).into_owned()));
         if !status.is_success() {
@@ -153,11 +167,11 @@ impl Client {
         path: &str,
         mut on_line: impl FnMut(Value) -> bool,
     ) -> Result<(), ClientError> {
-        let mut sender = self.connect().await?;
-        let resp = sender
-            .send_request(self.request(Method::GET, path, "application/json", Vec::new())?)
+        let req = self.request(Method::GET, path, "application/json", Vec::new())?;
+        let (endpoint, limits) = self.transport();
+        let resp = http::send(&endpoint, req, &limits)
             .await
-            .map_err(|e| ClientError::Http(e.to_string()))?;
+            .map_err(|e| self.transport_error(e))?;
         if !resp.status().is_success() {
             return Err(ClientError::Http(format!(
                 "watch failed: HTTP {}",

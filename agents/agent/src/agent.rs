@@ -6,6 +6,7 @@ use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::Instant;
 
+use configbot_api::backoff::Backoff;
 use configbot_cgroups::{CgroupBackend, CgroupConfig, CpuLimit, CpuMax, CpuStats, NodeName};
 use configbot_manifests::AdaptorRate;
 use serde::{Deserialize, Serialize};
@@ -18,8 +19,10 @@ use crate::metrics::Metrics;
 use crate::procfs::{Matcher, ProcInfo, is_alive, list_procs, read_proc, with_descendants};
 use crate::spec::{AgentSettings, NodeSource, NodeSpec, StackSpec};
 use crate::state::{self, CommittedConfig, PersistedNode, PersistedState, StartupLimits};
-use crate::supervise::{self, send_signal};
+use crate::supervise;
+use process::{RunNode, send_signal};
 
+pub(crate) mod process;
 pub mod stack;
 
 /// The agent handle; cheap to clone, shared by the API and supervisors.
@@ -251,13 +254,14 @@ impl Agent {
             return;
         }
         let (tx, rx) = watch::channel(false);
-        let handle = tokio::spawn(supervise::supervise(
-            self.clone(),
-            node.clone(),
+        let backoff = Backoff::new(self.settings().backoff_initial, self.settings().backoff_max);
+        let policy = spec.restart_policy;
+        let run = RunNode {
+            agent: self.clone(),
+            node: node.clone(),
             spec,
-            rx,
-            reattach,
-        ));
+        };
+        let handle = tokio::spawn(supervise::supervise(run, policy, backoff, rx, reattach));
         rt.supervisor = Some((tx, handle));
     }
 
@@ -543,7 +547,7 @@ impl Agent {
             rt.persisted.frozen = frozen;
         }
         let sig = if frozen { libc::SIGSTOP } else { libc::SIGCONT };
-        supervise::signal_cgroup(self, node, sig)?;
+        process::signal_cgroup(self, node, sig)?;
         Ok(())
     }
 
@@ -559,7 +563,7 @@ impl Agent {
             .iter()
             .filter(|(_, n)| n.persisted.frozen && !n.persisted.stopped)
         {
-            let _ = supervise::signal_cgroup(self, node, libc::SIGSTOP);
+            let _ = process::signal_cgroup(self, node, libc::SIGSTOP);
         }
     }
 

@@ -2,19 +2,19 @@
 //! same async methods as [`crate::runtime::NodeRuntime`] (set_stack, apply,
 //! measure, graph, inventory, stop/start/freeze/thaw of apps, rosbag
 //! recordings, events), over the agent's HTTP API: a Unix socket (no token;
-//! the socket's mode is the access rule) or TCP with a bearer token. One HTTP/1 connection per call (hyper's
-//! low-level client), so a blocking `measure` never holds up other calls.
+//! the socket's mode is the access rule) or TCP with a bearer token. One HTTP/1 connection per call
+//! (`configbot_http::client`), so a blocking `measure` never holds up other calls.
 
 use std::path::PathBuf;
 use std::time::Duration;
 
 use configbot_api::graph::Graph;
 use configbot_api::measure::{MeasureReport, MeasureRequest};
+use configbot_http::client as http;
 use configbot_manifests::{ResourceConfig, RobotStack};
 use http_body_util::{BodyExt, Full};
 use hyper::body::{Bytes, Incoming};
 use hyper::{Method, Request, Response, StatusCode, header};
-use hyper_util::rt::TokioIo;
 use serde::Serialize;
 use serde::de::DeserializeOwned;
 use tokio::sync::broadcast;
@@ -57,7 +57,7 @@ pub enum ClientError {
         method: Method,
         path: String,
         #[source]
-        source: hyper::Error,
+        source: configbot_http::client::Error,
     },
     #[error("building request {method} {path}")]
     Request {
@@ -98,8 +98,9 @@ pub struct AgentClient {
     connect_timeout: Duration,
 }
 
-trait Io: tokio::io::AsyncRead + tokio::io::AsyncWrite + Send + Unpin + 'static {}
-impl<T: tokio::io::AsyncRead + tokio::io::AsyncWrite + Send + Unpin + 'static> Io for T {}
+/// The largest answer the client reads (an inventory or a graph is at most
+/// a few MiB).
+const MAX_RESPONSE_BYTES: usize = 64 << 20;
 
 impl AgentClient {
     /// A client of the agent at `endpoint`.
@@ -128,23 +129,19 @@ impl AgentClient {
         &self.endpoint
     }
 
-    async fn connect(&self) -> ClientResult<Box<dyn Io>> {
-        let endpoint = self.endpoint.to_string();
-        let fut = async {
-            match &self.endpoint {
-                Endpoint::Unix(p) => tokio::net::UnixStream::connect(p)
-                    .await
-                    .map(|s| Box::new(s) as Box<dyn Io>),
-                Endpoint::Tcp { addr, .. } => tokio::net::TcpStream::connect(addr.as_str())
-                    .await
-                    .map(|s| Box::new(s) as Box<dyn Io>),
-            }
+    /// The transport's view of where the agent is and what it may take.
+    fn transport(&self) -> (http::Endpoint, http::Limits) {
+        let endpoint = match &self.endpoint {
+            Endpoint::Unix(p) => http::Endpoint::Unix(p.clone()),
+            Endpoint::Tcp { addr, .. } => http::Endpoint::Tcp(addr.clone()),
         };
-        match tokio::time::timeout(self.connect_timeout, fut).await {
-            Ok(Ok(s)) => Ok(s),
-            Ok(Err(source)) => Err(ClientError::Connect { endpoint, source }),
-            Err(_) => Err(ClientError::ConnectTimeout { endpoint }),
-        }
+        let limits = http::Limits {
+            connect_timeout: self.connect_timeout,
+            // `measure` blocks for its window; event streams never end.
+            response_timeout: None,
+            max_body: MAX_RESPONSE_BYTES,
+        };
+        (endpoint, limits)
     }
 
     /// Sends one request on a fresh connection; returns the response
@@ -155,19 +152,6 @@ impl AgentClient {
         path: &str,
         body: Option<Vec<u8>>,
     ) -> ClientResult<Response<Incoming>> {
-        let io = self.connect().await?;
-        let http_err = |source| ClientError::Http {
-            endpoint: self.endpoint.to_string(),
-            method: method.clone(),
-            path: path.to_owned(),
-            source,
-        };
-        let (mut sender, conn) = hyper::client::conn::http1::handshake(TokioIo::new(io))
-            .await
-            .map_err(http_err)?;
-        tokio::spawn(async move {
-            let _ = conn.await;
-        });
         let mut req = Request::builder()
             .method(method.clone())
             .uri(path)
@@ -185,16 +169,16 @@ impl AgentClient {
                 path: path.to_owned(),
                 source,
             })?;
-        let resp = sender.send_request(req).await.map_err(http_err)?;
+        let (endpoint, limits) = self.transport();
+        let resp = http::send(&endpoint, req, &limits)
+            .await
+            .map_err(|e| self.transport_error(&method, path, e))?;
         if resp.status() == StatusCode::OK {
             return Ok(resp);
         }
         let status = resp.status().as_u16();
-        let bytes = resp
-            .into_body()
-            .collect()
+        let bytes = http::read_body(resp.into_body(), limits.max_body)
             .await
-            .map(|b| b.to_bytes())
             .unwrap_or_default();
         let message = serde_json::from_slice::<serde_json::Value>(&bytes)
             .ok()
@@ -206,6 +190,21 @@ impl AgentClient {
             status,
             message,
         })
+    }
+
+    /// A transport failure of `method path`, naming the agent's endpoint.
+    fn transport_error(&self, method: &Method, path: &str, e: http::Error) -> ClientError {
+        let endpoint = self.endpoint.to_string();
+        match e {
+            http::Error::Connect(source) => ClientError::Connect { endpoint, source },
+            http::Error::ConnectTimeout(_) => ClientError::ConnectTimeout { endpoint },
+            source => ClientError::Http {
+                endpoint,
+                method: method.clone(),
+                path: path.to_owned(),
+                source,
+            },
+        }
     }
 
     async fn call<T: DeserializeOwned>(
@@ -222,17 +221,9 @@ impl AgentClient {
                     source,
                 })?;
         let resp = self.send(method.clone(), path, body).await?;
-        let bytes = resp
-            .into_body()
-            .collect()
+        let bytes = http::read_body(resp.into_body(), MAX_RESPONSE_BYTES)
             .await
-            .map_err(|source| ClientError::Http {
-                endpoint: self.endpoint.to_string(),
-                method,
-                path: path.to_owned(),
-                source,
-            })?
-            .to_bytes();
+            .map_err(|e| self.transport_error(&method, path, e))?;
         serde_json::from_slice(&bytes).map_err(|source| ClientError::Decode {
             path: path.to_owned(),
             source,

@@ -2,9 +2,11 @@
 //! cgroups, applies CPU configs from the controller atomically, survives its
 //! own restarts, and serves an HTTP API with Prometheus metrics.
 //!
-//! Pure decisions live in [`policy`] (restart/backoff), [`state`] (startup
-//! safety) and [`procfs`] parsers; IO is in [`spawn`], [`supervise`],
-//! [`agent`] and [`api`]. Cgroup access goes through
+//! Pure decisions live in [`policy`] (restart), [`state`] (startup
+//! safety) and [`procfs`] parsers; `supervise` is the restart loop over a
+//! narrow interface (tested without processes); IO is in [`spawn`],
+//! [`agent`] (with `agent::process`, the processes the loop drives) and
+//! [`api`]. Cgroup access goes through
 //! [`configbot_cgroups::CgroupBackend`].
 
 pub mod agent;

@@ -1,4 +1,5 @@
-//! Pure restart decisions: whether to restart after an exit, and how long to wait.
+//! Pure restart decisions: whether to restart after an exit, and which run
+//! counts as healthy (the delays are `configbot_api::backoff`'s).
 
 use std::time::Duration;
 
@@ -42,37 +43,9 @@ pub fn should_restart(policy: RestartPolicy, exit: ExitKind) -> bool {
     }
 }
 
-/// Exponential backoff: `initial`, doubling per consecutive failure, capped at
-/// `max`; reset after a run that lasted at least `stable`.
-#[derive(Debug, Clone)]
-pub struct Backoff {
-    initial: Duration,
-    max: Duration,
-    attempt: u32,
-}
-
-impl Backoff {
-    /// How long a run must last to count as healthy and reset the backoff.
-    pub const STABLE: Duration = Duration::from_secs(10);
-
-    pub fn new(initial: Duration, max: Duration) -> Self {
-        Self {
-            initial,
-            max,
-            attempt: 0,
-        }
-    }
-
-    /// The delay before the next restart, given how long the last run lasted.
-    pub fn next_delay(&mut self, ran_for: Duration) -> Duration {
-        if ran_for >= Self::STABLE {
-            self.attempt = 0;
-        }
-        let factor = 1u32.checked_shl(self.attempt.min(20)).unwrap_or(u32::MAX);
-        self.attempt = self.attempt.saturating_add(1);
-        self.initial.saturating_mul(factor).min(self.max)
-    }
-}
+/// How long a run must last to count as healthy: the restart after it
+/// starts the backoff over.
+pub const STABLE_RUN: Duration = Duration::from_secs(10);
 
 #[cfg(test)]
 mod tests {
@@ -95,18 +68,5 @@ mod tests {
         for (p, e, want) in cases {
             assert_eq!(should_restart(p, e), want, "{p:?} {e:?}");
         }
-    }
-
-    #[test]
-    fn backoff_doubles_caps_and_resets() {
-        let mut b = Backoff::new(Duration::from_millis(100), Duration::from_millis(1000));
-        let quick = Duration::from_millis(1);
-        let got: Vec<u128> = (0..6).map(|_| b.next_delay(quick).as_millis()).collect();
-        assert_eq!(got, [100, 200, 400, 800, 1000, 1000]);
-        assert_eq!(b.next_delay(Backoff::STABLE).as_millis(), 100);
-        for _ in 0..100 {
-            b.next_delay(quick);
-        }
-        assert_eq!(b.next_delay(quick).as_millis(), 1000);
     }
 }

@@ -1,6 +1,7 @@
 //! XML-RPC over HTTP: a hyper server that dispatches decoded calls (with
-//! `system.multicall`) to a handler, and a minimal one-shot client used to
-//! call node slave APIs (publisherUpdate, getPid, paramUpdate, ...).
+//! `system.multicall`) to a handler, and a one-shot client, on the
+//! workspace's one transport (`configbot_http::client`), used to call node
+//! slave APIs (publisherUpdate, getPid, paramUpdate, ...).
 //! Both sides are bounded by [`crate::limits`]: body size, nesting depth
 //! (in the codec), and how long a client may take to send a request or idle.
 
@@ -10,16 +11,16 @@ use std::pin::Pin;
 use std::sync::Arc;
 use std::time::Duration;
 
+use configbot_http::client;
 use http_body_util::{BodyExt, Full};
 use hyper::body::Bytes;
 use hyper::server::conn::http1;
 use hyper::service::service_fn;
 use hyper::{Request, Response as HttpResponse};
 use hyper_util::rt::{TokioIo, TokioTimer};
-use tokio::io::{AsyncReadExt, AsyncWriteExt};
-use tokio::net::{TcpListener, TcpStream};
+use tokio::net::TcpListener;
 
-use crate::limits::{MAX_HTTP_HEAD, MAX_XMLRPC_BODY, ServeLimits};
+use crate::limits::{MAX_XMLRPC_BODY, ServeLimits};
 use crate::xmlrpc::{self, MethodCall, Response, Value, XmlRpcError};
 
 /// Errors of XML-RPC client calls.
@@ -214,65 +215,64 @@ pub fn parse_uri(uri: &str) -> Option<(String, u16, String)> {
     Some((host.to_string(), port, path.to_string()))
 }
 
-/// Calls `method` on the XML-RPC server at `uri` and returns its value.
+/// Calls `method` on the XML-RPC server at `uri` and returns its value;
+/// the whole call (connect, request, response) takes at most `timeout`.
 pub async fn call(
     uri: &str,
     method: &str,
     params: &[Value],
     timeout: Duration,
 ) -> Result<Value, HttpError> {
-    match tokio::time::timeout(timeout, call_inner(uri, method, params)).await {
-        Ok(r) => r,
-        Err(_) => Err(HttpError::Timeout {
-            uri: uri.into(),
-            method: method.into(),
-        }),
-    }
-}
-
-async fn call_inner(uri: &str, method: &str, params: &[Value]) -> Result<Value, HttpError> {
     let (host, port, path) = parse_uri(uri).ok_or_else(|| HttpError::BadUri(uri.into()))?;
-    let io = |source| HttpError::Io {
-        uri: uri.into(),
-        method: method.into(),
-        source,
-    };
-    let mut s = TcpStream::connect((host.as_str(), port))
-        .await
-        .map_err(io)?;
-    let body = xmlrpc::encode_call(method, params);
-    let req = format!(
-        "POST {path} HTTP/1.1\r\nHost: {host}:{port}\r\nUser-Agent: configbot\r\nContent-Type: text/xml\r\nContent-Length: {}\r\nConnection: close\r\n\r\n{body}",
-        body.len()
-    );
-    s.write_all(req.as_bytes()).await.map_err(io)?;
-    let mut buf = Vec::new();
-    let limit = MAX_HTTP_HEAD + MAX_XMLRPC_BODY;
-    (&mut s)
-        .take(limit as u64 + 1)
-        .read_to_end(&mut buf)
-        .await
-        .map_err(io)?;
-    if buf.len() > limit {
-        return Err(HttpError::TooLarge {
-            uri: uri.into(),
-            method: method.into(),
-            limit,
-        });
-    }
     let bad = || HttpError::BadHttp {
         uri: uri.into(),
         method: method.into(),
     };
-    let split = buf
-        .windows(4)
-        .position(|w| w == b"\r\n\r\n")
-        .ok_or_else(bad)?;
-    let head = String::from_utf8_lossy(&buf[..split]);
-    if head.split_whitespace().nth(1).is_none_or(|c| c != "200") {
+    let req = Request::post(path)
+        .header(hyper::header::HOST, format!("{host}:{port}"))
+        .header(hyper::header::USER_AGENT, "configbot")
+        .header(hyper::header::CONTENT_TYPE, "text/xml")
+        .header(hyper::header::CONNECTION, "close")
+        .body(Full::new(Bytes::from(xmlrpc::encode_call(method, params))))
+        .map_err(|_| bad())?;
+    let limits = client::Limits {
+        connect_timeout: timeout,
+        response_timeout: Some(timeout),
+        max_body: MAX_XMLRPC_BODY,
+    };
+    let endpoint = client::Endpoint::Tcp(format!("{host}:{port}"));
+    let resp = client::fetch(&endpoint, req, &limits)
+        .await
+        .map_err(|e| match e {
+            client::Error::ConnectTimeout(_) | client::Error::Timeout(_) => HttpError::Timeout {
+                uri: uri.into(),
+                method: method.into(),
+            },
+            client::Error::TooLarge(limit) => HttpError::TooLarge {
+                uri: uri.into(),
+                method: method.into(),
+                limit,
+            },
+            client::Error::Connect(source) => HttpError::Io {
+                uri: uri.into(),
+                method: method.into(),
+                source,
+            },
+            // A write or read that failed under hyper: its IO kind is kept.
+            e => match e.io() {
+                Some(io) => HttpError::Io {
+                    uri: uri.into(),
+                    method: method.into(),
+                    source: std::io::Error::new(io.kind(), e),
+                },
+                // Not HTTP, or cut short.
+                None => bad(),
+            },
+        })?;
+    if resp.status() != hyper::StatusCode::OK {
         return Err(bad());
     }
-    let text = String::from_utf8_lossy(&buf[split + 4..]);
+    let text = String::from_utf8_lossy(resp.body());
     match xmlrpc::decode_response(&text) {
         Ok(Response::Ok(v)) => Ok(v),
         Ok(Response::Fault { code, message }) => Err(HttpError::Fault {
@@ -359,6 +359,7 @@ mod tests {
     }
 
     use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    use tokio::net::TcpStream;
 
     /// A server with `limits` and the client address it listens on.
     async fn limited(limits: ServeLimits) -> (tokio::task::JoinHandle<()>, SocketAddr, String) {

@@ -10,11 +10,9 @@ use std::time::Duration;
 /// Largest XML-RPC request or response body, in bytes. rosparam's biggest
 /// realistic upload (a robot description plus a few YAML files) is well under
 /// 1 MiB; a body over the limit is answered with fault −32700 without reading
-/// the rest.
+/// the rest. The XML-RPC client reads responses up to the same size (and
+/// their heads up to hyper's read buffer).
 pub const MAX_XMLRPC_BODY: usize = 16 << 20;
-
-/// Largest HTTP response head the XML-RPC client reads before the body.
-pub const MAX_HTTP_HEAD: usize = 64 << 10;
 
 /// Deepest XML element nesting of an XML-RPC document. Every nested value
 /// costs three elements (`<value><array><data>` or `<value><struct><member>`),

@@ -1,184 +1,68 @@
-//! The control-plane API's limits on what clients may send, in one place, and
-//! the pieces that enforce them: [`bounded_body`] (size and time of a request
-//! body, answered with a Kubernetes `Status`: 413 or 408) and [`serve`] (the
-//! HTTP/1.1 connection loop of the Unix socket; the TLS listener in `tls.rs`
-//! uses the same timeouts). JSON nesting is bounded by `serde_json`'s
-//! recursion limit (128) and YAML nesting by the manifest loader's
-//! (`configbot_manifests::yaml`): a deeper body is a 400, never a stack
-//! overflow.
+//! The control-plane API's limits on what clients may send: the agent's,
+//! from [`configbot_http::limits`] (body size and time, head and idle
+//! timeouts, the HTTP/1.1 connection loop of the Unix socket; the TLS
+//! listener in `tls.rs` uses the same timeouts), with a refused body
+//! answered as a Kubernetes `Status` (413, 400 or 408). YAML nesting is
+//! bounded by the manifest loader's (`configbot_manifests::yaml`): a deeper
+//! body is a 400, never a stack overflow.
 
-use std::time::Duration;
-
-use axum::Router;
-use axum::body::Body;
 use axum::extract::Request;
-use axum::http::header;
 use axum::middleware::Next;
-use axum::response::{IntoResponse, Response};
-use hyper_util::rt::{TokioIo, TokioTimer};
-use hyper_util::service::TowerToHyperService;
+use axum::response::Response;
+use configbot_http::limits::Refusal;
+pub use configbot_http::limits::{HEADER_TIMEOUT, MAX_BODY_BYTES, serve};
 
 use super::status::ApiError;
 
-/// Largest request body, in bytes (Kubernetes' limit on an object is 3 MiB).
-pub const MAX_BODY_BYTES: usize = 3 * 1024 * 1024;
-
-/// How long a client may take to send a request's head (or, over TCP, to
-/// finish the TLS handshake), and how long a kept-alive connection may idle
-/// before it is closed.
-pub const HEADER_TIMEOUT: Duration = Duration::from_secs(30);
-
-/// How long a client may take to send a request's body.
-pub const BODY_TIMEOUT: Duration = Duration::from_secs(30);
-
-fn refuse(e: ApiError) -> Response {
-    let mut r = e.into_response();
-    // The rest of the body is unread: this connection cannot carry another request.
-    r.headers_mut().insert(
-        header::CONNECTION,
-        header::HeaderValue::from_static("close"),
-    );
-    r
+impl From<Refusal> for ApiError {
+    fn from(r: Refusal) -> Self {
+        match r {
+            Refusal::TooLarge(m) => ApiError::PayloadTooLarge(m),
+            Refusal::Unreadable(m) => ApiError::BadRequest(m),
+            Refusal::TooSlow(m) => ApiError::RequestTimeout(m),
+        }
+    }
 }
 
-/// Middleware: reads the whole request body within [`BODY_TIMEOUT`] and
-/// [`MAX_BODY_BYTES`] before the handler runs. A declared length over the
-/// limit is refused before anything is read.
+/// Middleware: [`configbot_http::limits::bounded_body`] answering with a
+/// Kubernetes `Status`.
 pub async fn bounded_body(req: Request, next: Next) -> Response {
-    let declared = req
-        .headers()
-        .get(header::CONTENT_LENGTH)
-        .and_then(|v| v.to_str().ok())
-        .and_then(|v| v.parse::<u64>().ok());
-    let too_large = |size: String| {
-        refuse(ApiError::PayloadTooLarge(format!(
-            "request body{size} is larger than the {MAX_BODY_BYTES} byte limit"
-        )))
-    };
-    if let Some(n) = declared.filter(|&n| n > MAX_BODY_BYTES as u64) {
-        return too_large(format!(" ({n} bytes)"));
-    }
-    let (parts, body) = req.into_parts();
-    let read = tokio::time::timeout(BODY_TIMEOUT, axum::body::to_bytes(body, MAX_BODY_BYTES));
-    let bytes = match read.await {
-        Ok(Ok(b)) => b,
-        Ok(Err(e)) if is_length_limit(&e) => return too_large(String::new()),
-        Ok(Err(e)) => return refuse(ApiError::BadRequest(format!("reading request body: {e}"))),
-        Err(_) => {
-            return refuse(ApiError::RequestTimeout(format!(
-                "request body not received within {} s",
-                BODY_TIMEOUT.as_secs()
-            )));
-        }
-    };
-    next.run(Request::from_parts(parts, Body::from(bytes)))
-        .await
-}
-
-fn is_length_limit(e: &axum::Error) -> bool {
-    let mut src: Option<&(dyn std::error::Error + 'static)> = Some(e);
-    while let Some(s) = src {
-        if s.is::<http_body_util::LengthLimitError>() {
-            return true;
-        }
-        src = s.source();
-    }
-    false
-}
-
-/// Serves `router` on `listener` over HTTP/1.1 until the task is dropped: a
-/// connection whose request head takes longer than [`HEADER_TIMEOUT`], or
-/// that idles that long between requests, is closed.
-pub async fn serve<L>(mut listener: L, router: Router) -> std::io::Result<()>
-where
-    L: axum::serve::Listener,
-{
-    loop {
-        let (io, _) = listener.accept().await;
-        let svc = TowerToHyperService::new(router.clone());
-        tokio::spawn(async move {
-            let _ = hyper::server::conn::http1::Builder::new()
-                .timer(TokioTimer::new())
-                .header_read_timeout(HEADER_TIMEOUT)
-                .serve_connection(TokioIo::new(io), svc)
-                .with_upgrades()
-                .await;
-        });
-    }
+    configbot_http::limits::bounded_body::<ApiError>(req, next).await
 }
 
 #[cfg(test)]
 mod tests {
-    use axum::routing::post;
-    use http_body_util::BodyExt;
-    use tokio::io::AsyncReadExt;
-    use tower::ServiceExt;
-
     use axum::http::StatusCode;
+    use axum::response::IntoResponse;
+    use http_body_util::BodyExt;
 
     use super::*;
 
-    /// A route that echoes its body's length behind [`bounded_body`], with
-    /// the extractors' limit raised to the same size as in the API router.
-    fn app() -> Router {
-        Router::new()
-            .route(
-                "/",
-                post(|b: axum::body::Bytes| async move { b.len().to_string() }),
-            )
-            .layer(axum::extract::DefaultBodyLimit::max(MAX_BODY_BYTES))
-            .layer(axum::middleware::from_fn(bounded_body))
-    }
-
-    async fn send(body: Body, length: Option<u64>) -> (StatusCode, String) {
-        let mut req = Request::post("/");
-        if let Some(n) = length {
-            req = req.header(header::CONTENT_LENGTH, n);
-        }
-        let resp = app().oneshot(req.body(body).unwrap()).await.unwrap();
-        let code = resp.status();
-        let bytes = resp.into_body().collect().await.unwrap().to_bytes();
-        (code, String::from_utf8_lossy(&bytes).into_owned())
-    }
-
     #[tokio::test]
-    async fn bodies_within_the_limit_pass_and_larger_ones_are_413() {
-        let (code, body) = send(Body::from(vec![b'x'; MAX_BODY_BYTES]), None).await;
-        assert_eq!((code, body), (StatusCode::OK, MAX_BODY_BYTES.to_string()));
-        let (code, body) = send(Body::empty(), Some(MAX_BODY_BYTES as u64 + 1)).await;
-        assert_eq!(code, StatusCode::PAYLOAD_TOO_LARGE);
-        assert!(
-            body.contains("(3145729 bytes) is larger than the 3145728 byte limit"),
-            "{body}"
-        );
-        // No length: found while reading.
-        let chunks = futures_util::stream::iter(
-            (0..4).map(|_| Ok::<_, std::io::Error>(vec![b'x'; 1 << 20])),
-        );
-        let (code, body) = send(Body::from_stream(chunks), None).await;
-        assert_eq!(code, StatusCode::PAYLOAD_TOO_LARGE, "{body}");
-    }
-
-    #[tokio::test(start_paused = true)]
-    async fn a_body_that_stops_arriving_is_408() {
-        let stalled = futures_util::stream::pending::<Result<Vec<u8>, std::io::Error>>();
-        let (code, body) = send(Body::from_stream(stalled), None).await;
-        assert_eq!(code, StatusCode::REQUEST_TIMEOUT);
+    async fn refusals_are_kubernetes_statuses_with_their_codes() {
+        let cases = [
+            (
+                Refusal::TooLarge("big".into()),
+                StatusCode::PAYLOAD_TOO_LARGE,
+            ),
+            (
+                Refusal::Unreadable("broken".into()),
+                StatusCode::BAD_REQUEST,
+            ),
+            (Refusal::TooSlow("slow".into()), StatusCode::REQUEST_TIMEOUT),
+        ];
+        for (refusal, code) in cases {
+            assert_eq!(refusal.status(), code);
+            let resp = ApiError::from(refusal).into_response();
+            assert_eq!(resp.status(), code);
+        }
+        let resp = ApiError::from(Refusal::TooSlow(
+            "request body not received within 30 s".into(),
+        ))
+        .into_response();
+        let bytes = resp.into_body().collect().await.unwrap().to_bytes();
+        let body = String::from_utf8_lossy(&bytes);
         assert!(body.contains("not received within 30 s"), "{body}");
         assert!(body.contains(r#""reason":"Timeout""#), "{body}");
-    }
-
-    #[tokio::test(start_paused = true)]
-    async fn idle_connections_are_closed_after_the_header_timeout() {
-        let l = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
-        let addr = l.local_addr().unwrap();
-        let srv = tokio::spawn(serve(l, app()));
-        let mut s = tokio::net::TcpStream::connect(addr).await.unwrap();
-        let start = tokio::time::Instant::now();
-        let mut out = Vec::new();
-        s.read_to_end(&mut out).await.unwrap();
-        assert!(out.is_empty());
-        assert!(start.elapsed() >= HEADER_TIMEOUT, "{:?}", start.elapsed());
-        srv.abort();
     }
 }

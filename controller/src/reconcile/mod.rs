@@ -9,6 +9,7 @@ use std::collections::{HashMap, HashSet};
 use std::sync::Arc;
 use std::time::Duration;
 
+use configbot_api::backoff::{Backoff, XorShift};
 use configbot_manifests::{Kind, Phase};
 use serde_json::Value;
 use tokio::sync::mpsc;
@@ -34,42 +35,39 @@ pub enum Action {
     Requeue(Duration),
 }
 
-/// Jittered exponential backoff per key.
+/// A jittered backoff per key (800 ms → 30 s, ±25 %), each from its own
+/// seed so keys that fail together retry apart.
 #[derive(Debug, Clone)]
-pub struct Backoff {
-    pub initial: Duration,
-    pub max: Duration,
-    attempts: HashMap<ObjectKey, u32>,
-    seed: u64,
+pub struct Backoffs {
+    initial: Duration,
+    max: Duration,
+    by_key: HashMap<ObjectKey, Backoff>,
+    seeds: XorShift,
 }
 
-impl Backoff {
-    pub fn new(initial: Duration, max: Duration) -> Backoff {
-        Backoff {
+impl Backoffs {
+    pub fn new(initial: Duration, max: Duration) -> Backoffs {
+        Backoffs {
             initial,
             max,
-            attempts: HashMap::new(),
-            seed: 0x9E37_79B9_7F4A_7C15,
+            by_key: HashMap::new(),
+            seeds: XorShift::default(),
         }
     }
 
     /// The delay before the next retry of `key`: doubling from `initial` up to `max`, ±25 % jitter.
     pub fn next_delay(&mut self, key: &ObjectKey) -> Duration {
-        let n = self.attempts.entry(key.clone()).or_insert(0);
-        let base = self
-            .initial
-            .saturating_mul(1u32 << (*n).min(16))
-            .min(self.max);
-        *n += 1;
-        self.seed ^= self.seed << 13;
-        self.seed ^= self.seed >> 7;
-        self.seed ^= self.seed << 17;
-        let jitter = (self.seed % 501) as f64 / 1000.0 + 0.75; // 0.75 ..= 1.25
-        base.mul_f64(jitter).min(self.max)
+        let (initial, max, seeds) = (self.initial, self.max, &mut self.seeds);
+        self.by_key
+            .entry(key.clone())
+            .or_insert_with(|| {
+                Backoff::jittered(initial, max, 0.25, XorShift::new(seeds.next_u64()))
+            })
+            .next_delay()
     }
 
     pub fn reset(&mut self, key: &ObjectKey) {
-        self.attempts.remove(key);
+        self.by_key.remove(key);
     }
 }
 
@@ -152,7 +150,7 @@ pub async fn run(ctx: Context) {
             }
         }
     }
-    let mut backoff = Backoff::new(Duration::from_millis(800), Duration::from_secs(30));
+    let mut backoff = Backoffs::new(Duration::from_millis(800), Duration::from_secs(30));
     let mut queued: HashSet<ObjectKey> = HashSet::new();
     let mut pending: Vec<(ObjectKey, Instant)> = Vec::new();
     loop {
@@ -271,7 +269,7 @@ mod tests {
             namespace: "default".into(),
             name: "a".into(),
         };
-        let mut b = Backoff::new(Duration::from_millis(800), Duration::from_secs(30));
+        let mut b = Backoffs::new(Duration::from_millis(800), Duration::from_secs(30));
         let delays: Vec<Duration> = (0..8).map(|_| b.next_delay(&key)).collect();
         for (i, d) in delays.iter().enumerate() {
             let base = (800.0 * 2f64.powi(i as i32)).min(30_000.0);
@@ -284,5 +282,16 @@ mod tests {
         assert_eq!(delays[7], delays[7].min(Duration::from_secs(30)));
         b.reset(&key);
         assert!(b.next_delay(&key) <= Duration::from_millis(1000));
+        // Keys that fail together draw their jitter apart.
+        let others: Vec<Duration> = ["b", "c", "d"]
+            .map(|name| {
+                let key = ObjectKey {
+                    name: name.into(),
+                    ..key.clone()
+                };
+                b.next_delay(&key)
+            })
+            .into();
+        assert!(others.windows(2).any(|w| w[0] != w[1]), "{others:?}");
     }
 }

@@ -10,9 +10,11 @@
 //! calls it when the server has a robot attached.
 
 use std::collections::HashMap;
+use std::hash::{Hash, Hasher};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
+use configbot_api::backoff::{Backoff, XorShift};
 use configbot_manifests::{Kind, PerformanceSpec, PerformanceSpecStatus, Reason, RobotStack};
 use serde::{Deserialize, Serialize};
 use tokio::sync::broadcast;
@@ -115,7 +117,8 @@ struct Runner {
     /// Recent process execs (pid, time), to report how long after its
     /// process started a new node was detected.
     execs: std::collections::VecDeque<(u32, u64)>,
-    failures: u32,
+    /// Retries of failed iterations: 1 s doubling to 30 s, ±25 % jitter.
+    backoff: Backoff,
 }
 
 /// The newest node of `new_nodes` that is not in `old_nodes` and whose pid
@@ -140,6 +143,7 @@ pub fn new_node_exec(
 /// Run the tuning loop of one spec until the spec is deleted.
 pub async fn run_spec(ctx: RunnerCtx, ns: String, name: String) {
     let events = ctx.robot.events();
+    let backoff = retry_backoff(&ns, &name);
     let mut r = Runner {
         ctx,
         ns,
@@ -148,30 +152,39 @@ pub async fn run_spec(ctx: RunnerCtx, ns: String, name: String) {
         next_graph_check_ms: 0,
         graph_interval_ms: 30_000,
         execs: std::collections::VecDeque::new(),
-        failures: 0,
+        backoff,
     };
     let mut run: Option<Run> = None;
     loop {
         match r.iterate(run.take()).await {
             Ok(Some(next)) => {
-                r.failures = 0;
+                r.backoff.reset();
                 run = Some(next);
             }
             Ok(None) => return,
             Err((e, keep)) => {
-                r.failures += 1;
-                if r.failures == 1 {
+                if r.backoff.attempts() == 0 {
                     r.event(false, &Reason::TuningError, &e.to_string());
                 }
                 run = keep;
-                let backoff = Duration::from_millis(500u64.saturating_mul(1 << r.failures.min(6)));
-                r.ctx
-                    .clock
-                    .sleep(backoff.min(Duration::from_secs(30)))
-                    .await;
+                let delay = r.backoff.next_delay();
+                r.ctx.clock.sleep(delay).await;
             }
         }
     }
+}
+
+/// The runner's retry backoff, its jitter seeded by the spec's name so
+/// runners that fail together (a robot gone) retry apart.
+fn retry_backoff(ns: &str, name: &str) -> Backoff {
+    let mut h = std::collections::hash_map::DefaultHasher::new();
+    (ns, name).hash(&mut h);
+    Backoff::jittered(
+        Duration::from_secs(1),
+        Duration::from_secs(30),
+        0.25,
+        XorShift::new(h.finish()),
+    )
 }
 
 type IterResult = Result<Option<Run>, (RunnerError, Option<Run>)>;

@@ -10,12 +10,12 @@ use std::time::{Duration, Instant};
 use configbot_cgroups::{CpuStats, NodeName};
 use serde::{Deserialize, Serialize};
 
+use super::process;
 use super::{Agent, NodeRt};
 use crate::error::{Error, Result};
 use crate::procfs::Matcher;
 use crate::spec::{NodeSource, NodeSpec, StackSpec};
 use crate::state::PersistedNode;
-use crate::supervise;
 
 /// What a stack change does, node by node.
 #[derive(Debug, Clone, Default, PartialEq, Eq, Serialize, Deserialize)]
@@ -192,7 +192,7 @@ impl Agent {
         }
         // match nodes, and anything a finished run node left behind.
         if !self.backend().pids(node).unwrap_or_default().is_empty() {
-            supervise::terminate(self, node, None).await;
+            process::terminate(self, node, None).await;
         }
     }
 

@@ -18,8 +18,8 @@ use std::time::Duration;
 use tokio::process::{Child, Command};
 use tokio::sync::Mutex;
 
+use crate::agent::process::send_group;
 use crate::error::{Error, Result};
-use crate::supervise::send_group;
 
 /// How long rosbag gets to close its bag after SIGINT.
 pub const STOP_TIMEOUT: Duration = Duration::from_secs(10);
