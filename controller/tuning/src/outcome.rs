@@ -339,7 +339,7 @@ pub fn shortfall(defs: &[MetricDef], eval: &measure::Evaluation) -> String {
     let core = defs.iter().filter(|d| d.core);
     match core.zip(&eval.constraints).find(|(d, v)| !d.holds(**v)) {
         Some((d, v)) => format!(
-            "held in {held}, but their spread predicts misses: {} of {:.1} by the 99 % prediction bound (mean {} k·sd), target {}",
+            "held in {held}, but their spread predicts misses: {} of {:.1} by mean {} 2.33·sd, target {}",
             d.name,
             v,
             if d.at_least { "−" } else { "+" },
