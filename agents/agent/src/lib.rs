@@ -11,6 +11,7 @@ pub mod agent;
 pub mod api;
 pub mod cli;
 pub mod client;
+pub mod contract;
 pub mod error;
 pub mod events;
 pub mod limits;
@@ -26,6 +27,7 @@ mod supervise;
 
 pub use agent::stack::{StackDiff, diff_stacks};
 pub use agent::{Agent, ConfigUpdate, NodeStatus};
+pub use contract::NodeApi;
 pub use error::{Error, Result};
 pub use events::{AgentEvent, ProcEvent, ProcEventKind, RuntimeEvent};
 pub use runtime::{NodeRuntime, RosOptions, RuntimeOptions};

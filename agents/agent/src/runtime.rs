@@ -13,8 +13,8 @@
 //! - `apply` (module `apply`) and `measure` (module `measure`);
 //! - rosbag recordings on request (module [`record`]).
 //!
-//! The controller calls the same methods on an embedded runtime and, over
-//! HTTP, on [`crate::client::AgentClient`].
+//! The controller drives it through [`NodeApi`], which
+//! [`crate::client::AgentClient`] implements over HTTP.
 
 mod apply;
 mod measure;
@@ -29,7 +29,8 @@ use configbot_api::graph::{EdgeId, Graph, GraphEvent};
 use configbot_api::policy::{AppOf, PolicyConfig};
 use configbot_cgroups::CgroupBackend;
 use configbot_dataplane::DataPlane;
-use configbot_manifests::RobotStack;
+use configbot_api::measure::{MeasureReport, MeasureRequest};
+use configbot_manifests::{ResourceConfig, RobotStack};
 use configbot_procmon::{MonitorConfig, MonitorHandle, Preference, ProcessMonitor};
 use configbot_ros1::{Ros1Config, Ros1DataPlane, placement_from_apps};
 use prometheus::{GaugeVec, Opts, Registry, TextEncoder};
@@ -40,6 +41,7 @@ pub use self::apply::{Plan, plan};
 pub use self::measure::{Reading, boundaries, series};
 use crate::agent::stack::StackDiff;
 use crate::agent::{Agent, NodeStatus};
+use crate::contract::{BoxFuture, NodeApi};
 use crate::error::{Error, Result};
 use crate::events::{AgentEvent, ProcEvent, ProcEventKind, RuntimeEvent};
 use crate::spec::{AgentSettings, NodeSource, StackSpec};
@@ -462,13 +464,6 @@ impl NodeRuntime {
         Ok(text)
     }
 
-    /// Replaces the stack from a `RobotStack` manifest (see [`Self::set_stack_spec`]).
-    pub async fn set_stack(&self, stack: &RobotStack) -> Result<()> {
-        self.set_stack_spec(StackSpec::from_manifest(stack)?)
-            .await
-            .map(|_| ())
-    }
-
     /// Replaces the stack at run time: new nodes get cgroups and start,
     /// removed nodes stop and lose their cgroup, changed nodes restart, and
     /// the adaptor placement's app map follows.
@@ -486,71 +481,9 @@ impl NodeRuntime {
         Ok(diff)
     }
 
-    /// The ROS graph (empty without ROS).
-    pub async fn graph(&self) -> Result<Graph> {
-        Ok(self
-            .inner
-            .dp
-            .as_ref()
-            .map(|d| d.graph())
-            .unwrap_or_default())
-    }
-
     /// The node inventory.
     pub async fn inventory(&self) -> Result<Vec<NodeStatus>> {
         Ok(self.inner.agent.inventory())
-    }
-
-    /// Stops every node of `app` and keeps it stopped.
-    pub async fn stop_app(&self, app: &str) -> Result<()> {
-        self.inner.agent.stop_app(app).await
-    }
-
-    /// Starts `app` again.
-    pub async fn start_app(&self, app: &str) -> Result<()> {
-        self.inner.agent.start_app(app)?;
-        self.adopt_ros_nodes();
-        Ok(())
-    }
-
-    /// Freezes every node of `app` (SIGSTOP), see [`Agent::freeze_app`].
-    pub async fn freeze_app(&self, app: &str) -> Result<()> {
-        self.inner.agent.freeze_app(app)
-    }
-
-    /// Thaws every node of `app` (SIGCONT).
-    pub async fn thaw_app(&self, app: &str) -> Result<()> {
-        self.inner.agent.thaw_app(app)
-    }
-
-    /// Starts a rosbag recording of `topics` named `name` (see [`record`]);
-    /// the bag's path, or `None` when rosbag is not installed or there is
-    /// nothing to record.
-    pub async fn start_recording(&self, name: &str, topics: &[String]) -> Result<Option<PathBuf>> {
-        let master = self.master_uri().ok_or_else(|| Error::NoDataPlane {
-            what: "a rosbag recording".into(),
-        })?;
-        let started = self.inner.recordings.start(name, topics, &master).await?;
-        if let Some((p, true)) = &started {
-            self.emit(RuntimeEvent::Agent(AgentEvent::RecordingStarted {
-                name: name.to_owned(),
-                path: p.clone(),
-                topics: topics.to_vec(),
-            }));
-        }
-        Ok(started.map(|(p, _)| p))
-    }
-
-    /// Stops the recording `name`; the finished bag's path, if one was running.
-    pub async fn stop_recording(&self, name: &str) -> Result<Option<PathBuf>> {
-        let path = self.inner.recordings.stop(name).await;
-        if let Some(p) = &path {
-            self.emit(RuntimeEvent::Agent(AgentEvent::RecordingStopped {
-                name: name.to_owned(),
-                path: p.clone(),
-            }));
-        }
-        Ok(path)
     }
 
     /// Runtime events from now on.
@@ -575,6 +508,92 @@ impl NodeRuntime {
         }
         lock(&self.inner.monitor).take();
         self.inner.agent.detach();
+    }
+}
+
+/// The controller's operations; `apply` and `measure` live in their modules.
+impl NodeApi for NodeRuntime {
+    type Error = Error;
+
+    fn apply<'a>(&'a self, cfg: &'a ResourceConfig) -> BoxFuture<'a, Result<()>> {
+        Box::pin(self.apply_config(cfg))
+    }
+
+    fn measure<'a>(&'a self, req: &'a MeasureRequest) -> BoxFuture<'a, Result<MeasureReport>> {
+        Box::pin(self.measure_window(req))
+    }
+
+    fn graph(&self) -> BoxFuture<'_, Result<Graph>> {
+        let graph = self.inner.dp.as_ref().map(|d| d.graph());
+        Box::pin(async move { Ok(graph.unwrap_or_default()) })
+    }
+
+    fn stop_app<'a>(&'a self, app: &'a str) -> BoxFuture<'a, Result<()>> {
+        Box::pin(self.inner.agent.stop_app(app))
+    }
+
+    fn start_app<'a>(&'a self, app: &'a str) -> BoxFuture<'a, Result<()>> {
+        Box::pin(async move {
+            self.inner.agent.start_app(app)?;
+            self.adopt_ros_nodes();
+            Ok(())
+        })
+    }
+
+    /// See [`Agent::freeze_app`].
+    fn freeze_app<'a>(&'a self, app: &'a str) -> BoxFuture<'a, Result<()>> {
+        Box::pin(async move { self.inner.agent.freeze_app(app) })
+    }
+
+    fn thaw_app<'a>(&'a self, app: &'a str) -> BoxFuture<'a, Result<()>> {
+        Box::pin(async move { self.inner.agent.thaw_app(app) })
+    }
+
+    /// See [`record`]: `None` when rosbag is not installed or there is
+    /// nothing to record.
+    fn start_recording<'a>(
+        &'a self,
+        name: &'a str,
+        topics: &'a [String],
+    ) -> BoxFuture<'a, Result<Option<PathBuf>>> {
+        Box::pin(async move {
+            let master = self.master_uri().ok_or_else(|| Error::NoDataPlane {
+                what: "a rosbag recording".into(),
+            })?;
+            let started = self.inner.recordings.start(name, topics, &master).await?;
+            if let Some((p, true)) = &started {
+                self.emit(RuntimeEvent::Agent(AgentEvent::RecordingStarted {
+                    name: name.to_owned(),
+                    path: p.clone(),
+                    topics: topics.to_vec(),
+                }));
+            }
+            Ok(started.map(|(p, _)| p))
+        })
+    }
+
+    fn stop_recording<'a>(&'a self, name: &'a str) -> BoxFuture<'a, Result<Option<PathBuf>>> {
+        Box::pin(async move {
+            let path = self.inner.recordings.stop(name).await;
+            if let Some(p) = &path {
+                self.emit(RuntimeEvent::Agent(AgentEvent::RecordingStopped {
+                    name: name.to_owned(),
+                    path: p.clone(),
+                }));
+            }
+            Ok(path)
+        })
+    }
+
+    /// See [`NodeRuntime::set_stack_spec`].
+    fn set_stack<'a>(&'a self, stack: Option<&'a RobotStack>) -> BoxFuture<'a, Result<()>> {
+        Box::pin(async move {
+            let spec = match stack {
+                Some(s) => StackSpec::from_manifest(s)?,
+                None => StackSpec::default(),
+            };
+            self.set_stack_spec(spec).await.map(|_| ())
+        })
     }
 }
 
