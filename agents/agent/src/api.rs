@@ -7,10 +7,12 @@
 //!
 //! The operations the controller calls are the routes of [`crate::contract`]
 //! (method, path, body and answer each stated there once), registered here
-//! with one handler each by [`route`]. Besides them:
+//! with one handler each by `route`. Besides them:
 //!
 //! - `GET  /v1/status`             active process monitor, master URI, committed config
 //! - `GET  /metrics`               Prometheus text format
+//!
+//! Any other path is a 404 with the usual `{"error"}` body.
 
 use std::future::Future;
 use std::os::unix::fs::PermissionsExt;

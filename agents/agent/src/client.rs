@@ -251,7 +251,9 @@ impl AgentClient {
     /// so every event after this call arrives. The receiver closes when the
     /// connection ends; lines that do not parse are skipped.
     pub async fn events(&self) -> ClientResult<broadcast::Receiver<<Events as Route>::Response>> {
-        let resp = self.send(method(Events::METHOD), Events::PATH, None).await?;
+        let resp = self
+            .send(method(Events::METHOD), Events::PATH, None)
+            .await?;
         let (tx, rx) = broadcast::channel(4096);
         tokio::spawn(async move {
             let mut body = resp.into_body();
@@ -300,7 +302,10 @@ impl NodeApi for AgentClient {
         Box::pin(async move { self.call::<PutConfig>(&(), cfg).await.map(|_| ()) })
     }
 
-    fn measure<'a>(&'a self, req: &'a MeasureRequest) -> BoxFuture<'a, ClientResult<MeasureReport>> {
+    fn measure<'a>(
+        &'a self,
+        req: &'a MeasureRequest,
+    ) -> BoxFuture<'a, ClientResult<MeasureReport>> {
         Box::pin(self.call::<Measure>(&(), req))
     }
 
@@ -340,7 +345,9 @@ impl NodeApi for AgentClient {
 
     fn stop_recording<'a>(&'a self, name: &'a str) -> BoxFuture<'a, ClientResult<Option<PathBuf>>> {
         Box::pin(async move {
-            let r = self.call::<StopRecording>(&name.to_owned(), &NoBody).await?;
+            let r = self
+                .call::<StopRecording>(&name.to_owned(), &NoBody)
+                .await?;
             Ok(r.path)
         })
     }

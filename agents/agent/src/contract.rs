@@ -70,7 +70,12 @@ impl PathParam for String {
     fn fill(&self, template: &str) -> String {
         match (template.find('{'), template.find('}')) {
             (Some(a), Some(b)) if a < b => {
-                format!("{}{}{}", &template[..a], path_segment(self), &template[b + 1..])
+                format!(
+                    "{}{}{}",
+                    &template[..a],
+                    path_segment(self),
+                    &template[b + 1..]
+                )
             }
             _ => template.to_owned(),
         }
