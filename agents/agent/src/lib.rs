@@ -30,7 +30,7 @@ pub use agent::{Agent, ConfigUpdate, NodeStatus};
 pub use contract::NodeApi;
 pub use error::{Error, Result};
 pub use events::{AgentEvent, ProcEvent, ProcEventKind, RuntimeEvent};
-pub use runtime::{NodeRuntime, RosOptions, RuntimeOptions};
+pub use runtime::{DataPlaneOptions, NodeRuntime, RuntimeOptions};
 pub use spec::{
     AgentSettings, AppSpec, MatchSpec, NodeSource, NodeSpec, RestartPolicy, RunSpec, StackSpec,
 };

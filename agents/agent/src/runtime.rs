@@ -1,7 +1,8 @@
 //! The node runtime: one daemon that owns the robot. [`NodeRuntime`] joins
 //! the [`Agent`] (per-node cgroups, run/match processes), the process monitor
-//! (`configbot-procmon`: eBPF → proc connector → /proc scan) and the ROS 1 data
-//! plane (`configbot-ros1`: the agent is the ROS master). Glue only:
+//! (`configbot-procmon`: eBPF → proc connector → /proc scan) and a data plane
+//! (a `dyn DataPlane` started by name from [`backends`]; ROS 1's
+//! `configbot-ros1` makes the agent the ROS master). Glue only:
 //!
 //! - every process event goes to [`Agent::process_event`] (immediate `match`
 //!   adoption), wakes the ROS graph monitor and becomes a [`RuntimeEvent`];
@@ -17,6 +18,7 @@
 //! [`crate::client::AgentClient`] implements over HTTP.
 
 mod apply;
+pub mod backends;
 mod measure;
 pub mod record;
 
@@ -26,18 +28,18 @@ use std::sync::{Arc, Mutex, MutexGuard, RwLock};
 use std::time::Duration;
 
 use configbot_api::graph::{EdgeId, Graph, GraphEvent};
-use configbot_api::policy::{AppOf, PolicyConfig};
+use configbot_api::measure::{MeasureReport, MeasureRequest};
+use configbot_api::policy::AppOf;
 use configbot_cgroups::CgroupBackend;
 use configbot_dataplane::DataPlane;
-use configbot_api::measure::{MeasureReport, MeasureRequest};
 use configbot_manifests::{ResourceConfig, RobotStack};
 use configbot_procmon::{MonitorConfig, MonitorHandle, Preference, ProcessMonitor};
-use configbot_ros1::{Ros1Config, Ros1DataPlane, placement_from_apps};
 use prometheus::{GaugeVec, Opts, Registry, TextEncoder};
 use tokio::sync::broadcast;
 use tokio::task::JoinHandle;
 
 pub use self::apply::{Plan, plan};
+pub use self::backends::{DEFAULT_BACKEND, DataPlaneOptions};
 pub use self::measure::{Reading, boundaries, series};
 use crate::agent::stack::StackDiff;
 use crate::agent::{Agent, NodeStatus};
@@ -49,24 +51,12 @@ use crate::spec::{AgentSettings, NodeSource, StackSpec};
 /// Shortest gap between two graph wake-ups caused by process events.
 pub const WAKE_GAP: Duration = Duration::from_millis(50);
 
-/// The ROS 1 part of the runtime.
-#[derive(Debug, Clone)]
-pub struct RosOptions {
-    /// Master URI, ports and periods (its `placement` is set by the runtime).
-    pub config: Ros1Config,
-    /// SQLite file of registrations, parameters and adaptor settings.
-    pub db_path: PathBuf,
-    /// Adaptor placement policy (include/exclude lists; the rate rule is the
-    /// tuner's business).
-    pub policy: PolicyConfig,
-}
-
 /// Everything [`NodeRuntime::start`] needs besides the cgroup backend.
 #[derive(Debug, Clone)]
 pub struct RuntimeOptions {
     pub settings: AgentSettings,
-    /// `None`: no ROS data plane (`--no-ros`).
-    pub ros: Option<RosOptions>,
+    /// `None`: no data plane (`--no-ros`).
+    pub data_plane: Option<DataPlaneOptions>,
     /// `None`: no process monitor; `match` nodes are found by the agent's scan.
     pub monitor: Option<Preference>,
 }
@@ -79,7 +69,7 @@ pub struct NodeRuntime {
 
 struct Inner {
     agent: Agent,
-    dp: Option<Arc<Ros1DataPlane>>,
+    dp: Option<Arc<dyn DataPlane>>,
     /// The stack's apps as the adaptor placement reads them.
     apps: Arc<RwLock<AppMap>>,
     events: broadcast::Sender<RuntimeEvent>,
@@ -102,7 +92,7 @@ impl std::fmt::Debug for Inner {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("NodeRuntime")
             .field("agent", &self.agent)
-            .field("ros", &self.dp.as_ref().map(|d| d.master_uri().to_owned()))
+            .field("data_plane", &self.dp.as_ref().map(|d| d.uri().to_owned()))
             .field("monitor", &self.monitor_status)
             .finish_non_exhaustive()
     }
@@ -173,21 +163,24 @@ fn app_map(stack: &StackSpec) -> AppMap {
     m
 }
 
-/// `run` nodes get `ROS_MASTER_URI` of the agent's master unless they set one.
-fn with_master_uri(mut stack: StackSpec, master_uri: Option<&str>) -> StackSpec {
-    let Some(uri) = master_uri else {
-        return stack;
-    };
+/// `run` nodes get the data plane's environment (ROS 1: `ROS_MASTER_URI`
+/// of the agent's master) unless they set it.
+fn with_node_env(mut stack: StackSpec, env: &[(String, String)]) -> StackSpec {
     for app in &mut stack.apps {
         for n in &mut app.nodes {
             if let NodeSource::Run(r) = &mut n.source {
-                r.env
-                    .entry("ROS_MASTER_URI".into())
-                    .or_insert_with(|| uri.to_owned());
+                for (k, v) in env {
+                    r.env.entry(k.clone()).or_insert_with(|| v.clone());
+                }
             }
         }
     }
     stack
+}
+
+/// The environment of [`with_node_env`]: none without a data plane.
+fn node_env(dp: Option<&dyn DataPlane>) -> Vec<(String, String)> {
+    dp.map(DataPlane::node_env).unwrap_or_default()
 }
 
 impl NodeRuntime {
@@ -200,20 +193,11 @@ impl NodeRuntime {
     ) -> Result<Self> {
         let registry = Registry::new();
         let apps = Arc::new(RwLock::new(app_map(&stack)));
-        let dp = match opts.ros {
+        let dp = match &opts.data_plane {
             None => None,
-            Some(ros) => {
-                let of: Arc<dyn AppOf + Send + Sync> = Arc::new(LiveApps(apps.clone()));
-                let mut cfg = ros.config;
-                cfg.placement = Some(placement_from_apps(of, ros.policy));
-                let master_uri = cfg.master_uri.clone();
-                let dp = Ros1DataPlane::start(cfg, &ros.db_path, &registry)
-                    .await
-                    .map_err(|source| Error::Ros { master_uri, source })?;
-                Some(Arc::new(dp))
-            }
+            Some(o) => Some(backends::start(o, Arc::new(LiveApps(apps.clone())), &registry).await?),
         };
-        let stack = with_master_uri(stack, dp.as_ref().map(|d| d.master_uri()));
+        let stack = with_node_env(stack, &node_env(dp.as_deref()));
         let agent = Agent::start(backend, opts.settings, stack).await?;
         let (monitor, stream) = match opts.monitor {
             None => (None, None),
@@ -263,7 +247,7 @@ impl NodeRuntime {
 
     fn assemble(
         agent: Agent,
-        dp: Option<Arc<Ros1DataPlane>>,
+        dp: Option<Arc<dyn DataPlane>>,
         apps: Arc<RwLock<AppMap>>,
         registry: Registry,
         monitor: Option<MonitorHandle>,
@@ -338,14 +322,15 @@ impl NodeRuntime {
         &self.inner.agent
     }
 
-    /// The data plane, when ROS is enabled.
+    /// The data plane, when enabled.
     pub fn data_plane(&self) -> Option<Arc<dyn DataPlane>> {
-        self.inner.dp.clone().map(|d| d as Arc<dyn DataPlane>)
+        self.inner.dp.clone()
     }
 
-    /// The ROS master URI nodes should use, when ROS is enabled.
+    /// The data plane's URI (ROS 1: the master URI nodes should use), when
+    /// enabled.
     pub fn master_uri(&self) -> Option<String> {
-        self.inner.dp.as_ref().map(|d| d.master_uri().to_owned())
+        self.inner.dp.as_ref().map(|d| d.uri().to_owned())
     }
 
     /// The process monitor in use and why better ones failed.
@@ -391,7 +376,7 @@ impl NodeRuntime {
 
     /// Graph changes become events and trigger ROS adoption; a 1 s tick
     /// catches pids that appeared without a change event reaching us.
-    async fn graph_loop(&self, dp: Arc<Ros1DataPlane>) {
+    async fn graph_loop(&self, dp: Arc<dyn DataPlane>) {
         let mut rx = dp.subscribe_events();
         let mut tick = tokio::time::interval(Duration::from_secs(1));
         loop {
@@ -469,7 +454,7 @@ impl NodeRuntime {
     /// the adaptor placement's app map follows.
     pub async fn set_stack_spec(&self, stack: StackSpec) -> Result<StackDiff> {
         let _serial = self.inner.ops.lock().await;
-        let stack = with_master_uri(stack, self.master_uri().as_deref());
+        let stack = with_node_env(stack, &node_env(self.inner.dp.as_deref()));
         let map = app_map(&stack);
         let diff = self.inner.agent.set_stack(stack).await?;
         *self
@@ -614,7 +599,11 @@ mod tests {
         assert_eq!(m.is_core("/t"), Some(true));
         assert_eq!(m.is_core("/listener"), Some(false));
         assert!(m.claimed.is_empty());
-        let s = with_master_uri(s, Some("http://localhost:5/"));
+        let uri = (
+            "ROS_MASTER_URI".to_owned(),
+            "http://localhost:5/".to_owned(),
+        );
+        let s = with_node_env(s, &[uri]);
         let env = |i: usize| match &s.apps[0].nodes[i].source {
             NodeSource::Run(r) => r.env.get("ROS_MASTER_URI").cloned(),
             NodeSource::Match(_) => None,
