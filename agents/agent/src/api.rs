@@ -196,13 +196,11 @@ impl FromPath for () {
 }
 
 impl FromPath for String {
-    fn from_path(parts: &mut Parts) -> impl Future<Output = Result<Self, Response>> + Send {
-        async move {
-            UrlPath::<String>::from_request_parts(parts, &())
-                .await
-                .map(|UrlPath(s)| s)
-                .map_err(IntoResponse::into_response)
-        }
+    async fn from_path(parts: &mut Parts) -> Result<Self, Response> {
+        UrlPath::<String>::from_request_parts(parts, &())
+            .await
+            .map(|UrlPath(s)| s)
+            .map_err(IntoResponse::into_response)
     }
 }
 
@@ -218,24 +216,20 @@ impl FromBody for NoBody {
 }
 
 impl<T: DeserializeOwned + Send> FromBody for T {
-    fn from_body(req: Request) -> impl Future<Output = Result<Self, Response>> + Send {
-        async move {
-            Json::<T>::from_request(req, &())
-                .await
-                .map(|Json(v)| v)
-                .map_err(|r| bad_json(&r).into_response())
-        }
+    async fn from_body(req: Request) -> Result<Self, Response> {
+        Json::<T>::from_request(req, &())
+            .await
+            .map(|Json(v)| v)
+            .map_err(|r| bad_json(&r).into_response())
     }
 }
 
 /// A `RobotStack` manifest (has `apiVersion`; decoded and validated, every
 /// error named) or a plain `StackSpec`.
 impl FromBody for StackBody {
-    fn from_body(req: Request) -> impl Future<Output = Result<Self, Response>> + Send {
-        async move {
-            let v = serde_json::Value::from_body(req).await?;
-            stack_body(v).map_err(IntoResponse::into_response)
-        }
+    async fn from_body(req: Request) -> Result<Self, Response> {
+        let v = serde_json::Value::from_body(req).await?;
+        stack_body(v).map_err(IntoResponse::into_response)
     }
 }
 
