@@ -1,7 +1,8 @@
 //! The robots the controller drives, as the tuning loop's [`Robot`]: the node
 //! runtime embedded in this process (`configbot serve --agent`) or a remote
-//! agent over its API (`AgentClient`), one generic [`AgentRobot`] over their
-//! shared method set. Both map the runtime's events onto [`RobotEvent`]s.
+//! agent over its API (`AgentClient`), one generic [`AgentRobot`] over the
+//! agent's [`NodeApi`] that both implement. Both map the runtime's events
+//! onto [`RobotEvent`]s.
 //! [`sync_stacks`] keeps the robot running the newest valid RobotStack of the
 //! store.
 
@@ -18,7 +19,7 @@ use tokio::sync::broadcast;
 use crate::store::Store;
 use configbot_tuning::monitor::RobotEvent;
 
-use crate::tuning::robot::{BoxFuture, Robot, RobotError};
+use crate::tuning::robot::{BoxFuture, NodeApi, Robot, RobotError};
 
 /// The tuning loop's view of one runtime event; `None` for events it ignores.
 pub fn robot_event(e: &RuntimeEvent) -> Option<RobotEvent> {
@@ -53,92 +54,7 @@ pub fn robot_event(e: &RuntimeEvent) -> Option<RobotEvent> {
     })
 }
 
-/// The node runtime's method set. [`NodeRuntime`] (in this process) and
-/// [`AgentClient`] (a remote agent over its API) have the same inherent
-/// methods; [`node_api!`] states that once as this trait, so one
-/// [`Robot`] implementation serves both.
-trait NodeApi: Send + Sync + 'static {
-    type Error: std::error::Error + Send + Sync + 'static;
-    fn apply(&self, cfg: &ResourceConfig) -> impl Future<Output = Result<(), Self::Error>> + Send;
-    fn measure(
-        &self,
-        req: &MeasureRequest,
-    ) -> impl Future<Output = Result<MeasureReport, Self::Error>> + Send;
-    fn graph(&self) -> impl Future<Output = Result<Graph, Self::Error>> + Send;
-    fn stop_app(&self, app: &str) -> impl Future<Output = Result<(), Self::Error>> + Send;
-    fn start_app(&self, app: &str) -> impl Future<Output = Result<(), Self::Error>> + Send;
-    fn freeze_app(&self, app: &str) -> impl Future<Output = Result<(), Self::Error>> + Send;
-    fn thaw_app(&self, app: &str) -> impl Future<Output = Result<(), Self::Error>> + Send;
-    fn start_recording(
-        &self,
-        name: &str,
-        topics: &[String],
-    ) -> impl Future<Output = Result<Option<PathBuf>, Self::Error>> + Send;
-    fn stop_recording(
-        &self,
-        name: &str,
-    ) -> impl Future<Output = Result<Option<PathBuf>, Self::Error>> + Send;
-    fn set_stack(&self, stack: &RobotStack)
-    -> impl Future<Output = Result<(), Self::Error>> + Send;
-}
-
-/// Implements [`NodeApi`] for a type by calling its inherent methods of the
-/// same names (inherent methods take precedence in `<T>::name` paths).
-macro_rules! node_api {
-    ($t:ty, $err:ty) => {
-        impl NodeApi for $t {
-            type Error = $err;
-            fn apply(&self, cfg: &ResourceConfig) -> impl Future<Output = Result<(), $err>> + Send {
-                <$t>::apply(self, cfg)
-            }
-            fn measure(
-                &self,
-                req: &MeasureRequest,
-            ) -> impl Future<Output = Result<MeasureReport, $err>> + Send {
-                <$t>::measure(self, req)
-            }
-            fn graph(&self) -> impl Future<Output = Result<Graph, $err>> + Send {
-                <$t>::graph(self)
-            }
-            fn stop_app(&self, app: &str) -> impl Future<Output = Result<(), $err>> + Send {
-                <$t>::stop_app(self, app)
-            }
-            fn start_app(&self, app: &str) -> impl Future<Output = Result<(), $err>> + Send {
-                <$t>::start_app(self, app)
-            }
-            fn freeze_app(&self, app: &str) -> impl Future<Output = Result<(), $err>> + Send {
-                <$t>::freeze_app(self, app)
-            }
-            fn thaw_app(&self, app: &str) -> impl Future<Output = Result<(), $err>> + Send {
-                <$t>::thaw_app(self, app)
-            }
-            fn start_recording(
-                &self,
-                name: &str,
-                topics: &[String],
-            ) -> impl Future<Output = Result<Option<PathBuf>, $err>> + Send {
-                <$t>::start_recording(self, name, topics)
-            }
-            fn stop_recording(
-                &self,
-                name: &str,
-            ) -> impl Future<Output = Result<Option<PathBuf>, $err>> + Send {
-                <$t>::stop_recording(self, name)
-            }
-            fn set_stack(
-                &self,
-                stack: &RobotStack,
-            ) -> impl Future<Output = Result<(), $err>> + Send {
-                <$t>::set_stack(self, stack)
-            }
-        }
-    };
-}
-
-node_api!(NodeRuntime, configbot_agent::Error);
-node_api!(AgentClient, configbot_agent::client::ClientError);
-
-/// A robot driven through a node runtime's method set: [`EmbeddedRobot`] or
+/// A robot driven through a node runtime's [`NodeApi`]: [`EmbeddedRobot`] or
 /// [`RemoteRobot`]. Runtime events are mapped onto [`RobotEvent`]s by a
 /// forwarding task that ends with the robot.
 pub struct AgentRobot<N> {
@@ -238,11 +154,9 @@ fn wrap<E: std::error::Error + Send + Sync + 'static>(
     move |e| RobotError::wrap(op, e)
 }
 
-fn bag_path(p: Option<PathBuf>) -> Option<String> {
-    p.map(|p| p.display().to_string())
-}
+impl<N: NodeApi> NodeApi for AgentRobot<N> {
+    type Error = RobotError;
 
-impl<N: NodeApi> Robot for AgentRobot<N> {
     fn apply<'a>(&'a self, cfg: &'a ResourceConfig) -> BoxFuture<'a, Result<(), RobotError>> {
         Box::pin(async move { self.node.apply(cfg).await.map_err(wrap("apply")) })
     }
@@ -278,55 +192,34 @@ impl<N: NodeApi> Robot for AgentRobot<N> {
         &'a self,
         name: &'a str,
         topics: &'a [String],
-    ) -> BoxFuture<'a, Result<Option<String>, RobotError>> {
+    ) -> BoxFuture<'a, Result<Option<PathBuf>, RobotError>> {
         Box::pin(async move {
             let p = self.node.start_recording(name, topics).await;
-            p.map(bag_path).map_err(wrap("start_recording"))
+            p.map_err(wrap("start_recording"))
         })
     }
 
     fn stop_recording<'a>(
         &'a self,
         name: &'a str,
-    ) -> BoxFuture<'a, Result<Option<String>, RobotError>> {
+    ) -> BoxFuture<'a, Result<Option<PathBuf>, RobotError>> {
         Box::pin(async move {
             let p = self.node.stop_recording(name).await;
-            p.map(bag_path).map_err(wrap("stop_recording"))
+            p.map_err(wrap("stop_recording"))
         })
-    }
-
-    fn events(&self) -> broadcast::Receiver<RobotEvent> {
-        self.events.subscribe()
     }
 
     fn set_stack<'a>(
         &'a self,
         stack: Option<&'a RobotStack>,
     ) -> BoxFuture<'a, Result<(), RobotError>> {
-        Box::pin(async move {
-            let empty;
-            let stack = match stack {
-                Some(s) => s,
-                None => {
-                    empty = empty_stack();
-                    &empty
-                }
-            };
-            self.node.set_stack(stack).await.map_err(wrap("set_stack"))
-        })
+        Box::pin(async move { self.node.set_stack(stack).await.map_err(wrap("set_stack")) })
     }
 }
 
-fn empty_stack() -> RobotStack {
-    RobotStack {
-        api_version: configbot_manifests::API_VERSION.into(),
-        kind: "RobotStack".into(),
-        metadata: Default::default(),
-        spec: configbot_manifests::RobotStackSpec {
-            robot: Default::default(),
-            apps: Vec::new(),
-        },
-        status: None,
+impl<N: NodeApi> Robot for AgentRobot<N> {
+    fn events(&self) -> broadcast::Receiver<RobotEvent> {
+        self.events.subscribe()
     }
 }
 

@@ -11,7 +11,7 @@ use std::time::Duration;
 
 use configbot_controller::metrics::Metrics;
 use configbot_controller::store::Store;
-use configbot_controller::tuning::robot::Robot;
+use configbot_controller::tuning::robot::NodeApi;
 use configbot_controller::tuning::runner::{self, RunnerCtx};
 use configbot_controller::tuning::sim::{SimInput, SimNode, SimRobot};
 use configbot_manifests::Kind;

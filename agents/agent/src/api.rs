@@ -5,38 +5,46 @@
 //! Bodies, request heads and idle connections are bounded by
 //! [`crate::limits`]: an oversized body is a 413, a slow one a 408.
 //!
-//! - `GET  /v1/nodes`              node inventory
-//! - `PUT  /v1/stack`              a `RobotStack` manifest (or a plain `StackSpec`), applied live
-//! - `PUT  /v1/config`             a `ResourceConfig`: CPU limits per node, adaptor rates per edge
-//! - `POST /v1/measure`            a [`MeasureRequest`] → [`MeasureReport`] (blocks for the window)
-//! - `GET  /v1/graph`              the ROS graph
-//! - `POST /v1/apps/{app}/stop`    graceful stop of an app
-//! - `POST /v1/apps/{app}/start`   start an app again
-//! - `POST /v1/apps/{app}/freeze`  SIGSTOP an app's processes (`/thaw`: SIGCONT)
-//! - `PUT  /v1/recordings/{name}`  `{"topics": [...]}`: start a rosbag recording → `{"path"}`
-//! - `DELETE /v1/recordings/{name}` stop it → `{"path"}` (null: none was running)
-//! - `GET  /v1/events`             NDJSON stream of [`RuntimeEvent`]s
+//! The operations the controller calls are the routes of [`crate::contract`]
+//! (method, path, body and answer each stated there once), registered here
+//! with one handler each by `route`. Besides them:
+//!
 //! - `GET  /v1/status`             active process monitor, master URI, committed config
 //! - `GET  /metrics`               Prometheus text format
+//!
+//! Any other path is a 404 with the usual `{"error"}` body.
 
+use std::future::Future;
 use std::os::unix::fs::PermissionsExt;
 use std::path::Path;
 use std::sync::Arc;
 
 use axum::body::Body;
 use axum::extract::rejection::JsonRejection;
-use axum::extract::{DefaultBodyLimit, Path as UrlPath, Request, State};
-use axum::http::{StatusCode, header};
+use axum::extract::{
+    DefaultBodyLimit, FromRequest, FromRequestParts, Path as UrlPath, Request, State,
+};
+use axum::http::request::Parts;
+use axum::http::{Method, StatusCode, Uri, header};
 use axum::middleware::{self, Next};
 use axum::response::{IntoResponse, Response};
-use axum::routing::{get, post, put};
+use axum::routing::{MethodFilter, get, on};
 use axum::{Json, Router};
+use serde::de::DeserializeOwned;
 use serde_json::json;
 
+use configbot_api::graph::Graph;
 use configbot_api::measure::{MeasureReport, MeasureRequest};
 use configbot_manifests::{Manifest, ResourceConfig};
 
+use crate::agent::NodeStatus;
 use crate::agent::error_chain;
+use crate::agent::stack::StackDiff;
+use crate::contract::{
+    AppReply, BoxFuture, Events, FreezeApp, GetGraph, Measure, NoBody, NodeApi, Nodes, PutConfig,
+    PutStack, RecordingReply, RecordingRequest, Route, StackBody, StartApp, StartRecording,
+    StopApp, StopRecording, ThawApp, Verb,
+};
 use crate::error::Error;
 use crate::events::RuntimeEvent;
 use crate::limits;
@@ -100,24 +108,155 @@ impl IntoResponse for ApiError {
 /// The API router. `token`: require `Authorization: Bearer <token>` (TCP).
 pub fn router(rt: NodeRuntime, token: Option<String>) -> Router {
     let token = Arc::new(token);
-    Router::new()
-        .route("/v1/nodes", get(nodes))
-        .route("/v1/stack", put(put_stack))
-        .route("/v1/config", put(put_config))
-        .route("/v1/measure", post(measure))
-        .route("/v1/graph", get(graph))
-        .route("/v1/apps/{app}/{action}", post(app_action))
-        .route(
-            "/v1/recordings/{name}",
-            put(start_recording).delete(stop_recording),
-        )
-        .route("/v1/events", get(events))
+    let r = Router::new();
+    let r = route::<Nodes, _, _>(r, nodes);
+    let r = route::<PutStack, _, _>(r, put_stack);
+    let r = route::<PutConfig, _, _>(r, put_config);
+    let r = route::<Measure, _, _>(r, measure);
+    let r = route::<GetGraph, _, _>(r, graph);
+    let r = app_route::<StopApp>(r, NodeRuntime::stop_app);
+    let r = app_route::<StartApp>(r, NodeRuntime::start_app);
+    let r = app_route::<FreezeApp>(r, NodeRuntime::freeze_app);
+    let r = app_route::<ThawApp>(r, NodeRuntime::thaw_app);
+    let r = route::<StartRecording, _, _>(r, start_recording);
+    let r = route::<StopRecording, _, _>(r, stop_recording);
+    r.route(Events::PATH, on(filter(Events::METHOD), events))
         .route("/v1/status", get(status))
         .route("/metrics", get(metrics))
+        .fallback(not_found)
         .with_state(rt)
         .layer(DefaultBodyLimit::max(limits::MAX_BODY_BYTES))
         .layer(middleware::from_fn(limits::bounded_body))
         .layer(middleware::from_fn_with_state(token, auth))
+}
+
+fn filter(v: Verb) -> MethodFilter {
+    match v {
+        Verb::Get => MethodFilter::GET,
+        Verb::Put => MethodFilter::PUT,
+        Verb::Post => MethodFilter::POST,
+        Verb::Delete => MethodFilter::DELETE,
+    }
+}
+
+/// Registers route `R` with `handler`, which gets the runtime, the path
+/// parameter and the body as `R` types them and answers `R::Response` (as
+/// JSON) or an [`ApiError`].
+fn route<R, F, Fut>(router: Router<NodeRuntime>, handler: F) -> Router<NodeRuntime>
+where
+    R: Route + 'static,
+    R::Param: FromPath,
+    R::Request: FromBody,
+    F: Fn(NodeRuntime, R::Param, R::Request) -> Fut + Clone + Send + Sync + 'static,
+    Fut: Future<Output = Result<R::Response, ApiError>> + Send + 'static,
+{
+    let h = move |State(rt): State<NodeRuntime>, req: Request| async move {
+        let (mut parts, body) = req.into_parts();
+        let param = match R::Param::from_path(&mut parts).await {
+            Ok(p) => p,
+            Err(e) => return e,
+        };
+        let body = match R::Request::from_body(Request::from_parts(parts, body)).await {
+            Ok(b) => b,
+            Err(e) => return e,
+        };
+        match handler(rt, param, body).await {
+            Ok(v) => Json(v).into_response(),
+            Err(e) => e.into_response(),
+        }
+    };
+    router.route(R::PATH, on(filter(R::METHOD), h))
+}
+
+/// Registers an app route: `op` on the app named in the path, answered with
+/// the action (the path's last segment).
+fn app_route<R>(
+    router: Router<NodeRuntime>,
+    op: for<'a> fn(&'a NodeRuntime, &'a str) -> BoxFuture<'a, crate::Result<()>>,
+) -> Router<NodeRuntime>
+where
+    R: Route<Param = String, Request = NoBody, Response = AppReply> + 'static,
+{
+    route::<R, _, _>(router, move |rt, app, NoBody| async move {
+        op(&rt, &app).await?;
+        let done = R::PATH.rsplit('/').next().unwrap_or_default().to_owned();
+        Ok(AppReply { app, done })
+    })
+}
+
+/// A route's path parameter, taken from the request.
+trait FromPath: Sized + Send {
+    fn from_path(parts: &mut Parts) -> impl Future<Output = Result<Self, Response>> + Send;
+}
+
+impl FromPath for () {
+    async fn from_path(_: &mut Parts) -> Result<(), Response> {
+        Ok(())
+    }
+}
+
+impl FromPath for String {
+    async fn from_path(parts: &mut Parts) -> Result<Self, Response> {
+        UrlPath::<String>::from_request_parts(parts, &())
+            .await
+            .map(|UrlPath(s)| s)
+            .map_err(IntoResponse::into_response)
+    }
+}
+
+/// A route's request body, taken from the request.
+trait FromBody: Sized + Send {
+    fn from_body(req: Request) -> impl Future<Output = Result<Self, Response>> + Send;
+}
+
+impl FromBody for NoBody {
+    async fn from_body(_: Request) -> Result<NoBody, Response> {
+        Ok(NoBody)
+    }
+}
+
+impl<T: DeserializeOwned + Send> FromBody for T {
+    async fn from_body(req: Request) -> Result<Self, Response> {
+        Json::<T>::from_request(req, &())
+            .await
+            .map(|Json(v)| v)
+            .map_err(|r| bad_json(&r).into_response())
+    }
+}
+
+/// A `RobotStack` manifest (has `apiVersion`; decoded and validated, every
+/// error named) or a plain `StackSpec`.
+impl FromBody for StackBody {
+    async fn from_body(req: Request) -> Result<Self, Response> {
+        let v = serde_json::Value::from_body(req).await?;
+        stack_body(v).map_err(IntoResponse::into_response)
+    }
+}
+
+fn stack_body(v: serde_json::Value) -> Result<StackBody, ApiError> {
+    if v.get("apiVersion").is_none() {
+        return serde_json::from_value::<StackSpec>(v)
+            .map(StackBody::Spec)
+            .map_err(|e| ApiError::BadRequest(e.to_string()));
+    }
+    match configbot_manifests::decode_and_validate(&v) {
+        Ok(Manifest::RobotStack(s)) => Ok(StackBody::Manifest(Box::new(s))),
+        Ok(other) => Err(ApiError::BadRequest(format!(
+            "want a RobotStack, got a {}",
+            other.kind().name()
+        ))),
+        Err(errs) => {
+            let msg: Vec<String> = errs
+                .iter()
+                .map(|e| format!("{}: {}", e.path, e.message))
+                .collect();
+            Err(ApiError::BadRequest(msg.join("; ")))
+        }
+    }
+}
+
+async fn not_found(method: Method, uri: Uri) -> ApiError {
+    ApiError::NotFound(format!("no endpoint {method} {}", uri.path()))
 }
 
 async fn auth(State(token): State<Arc<Option<String>>>, req: Request, next: Next) -> Response {
@@ -149,110 +288,51 @@ fn bad_json(r: &JsonRejection) -> ApiError {
     ApiError::BadRequest(r.body_text())
 }
 
-async fn nodes(State(rt): State<NodeRuntime>) -> Result<impl IntoResponse, ApiError> {
-    Ok(Json(rt.inventory().await?))
+async fn nodes(rt: NodeRuntime, (): (), _: NoBody) -> Result<Vec<NodeStatus>, ApiError> {
+    Ok(rt.inventory().await?)
 }
 
-async fn put_stack(
-    State(rt): State<NodeRuntime>,
-    body: Result<Json<serde_json::Value>, JsonRejection>,
-) -> Result<impl IntoResponse, ApiError> {
-    let Json(v) = body.map_err(|r| bad_json(&r))?;
-    let spec = if v.get("apiVersion").is_some() {
-        match configbot_manifests::decode_and_validate(&v) {
-            Ok(Manifest::RobotStack(s)) => StackSpec::from_manifest(&s)?,
-            Ok(other) => {
-                return Err(ApiError::BadRequest(format!(
-                    "want a RobotStack, got a {}",
-                    other.kind().name()
-                )));
-            }
-            Err(errs) => {
-                let msg: Vec<String> = errs
-                    .iter()
-                    .map(|e| format!("{}: {}", e.path, e.message))
-                    .collect();
-                return Err(ApiError::BadRequest(msg.join("; ")));
-            }
-        }
-    } else {
-        serde_json::from_value::<StackSpec>(v).map_err(|e| ApiError::BadRequest(e.to_string()))?
+async fn put_stack(rt: NodeRuntime, (): (), body: StackBody) -> Result<StackDiff, ApiError> {
+    let spec = match body {
+        StackBody::Manifest(s) => StackSpec::from_manifest(&s)?,
+        StackBody::Spec(s) => s,
     };
-    let diff = rt.set_stack_spec(spec).await?;
-    Ok(Json(diff))
+    Ok(rt.set_stack_spec(spec).await?)
 }
 
 async fn put_config(
-    State(rt): State<NodeRuntime>,
-    body: Result<Json<ResourceConfig>, JsonRejection>,
-) -> Result<impl IntoResponse, ApiError> {
-    let Json(cfg) = body.map_err(|r| bad_json(&r))?;
+    rt: NodeRuntime,
+    (): (),
+    cfg: ResourceConfig,
+) -> Result<serde_json::Value, ApiError> {
     rt.apply(&cfg).await?;
-    Ok(Json(
-        json!({ "applied": true, "committed": rt.agent().committed() }),
-    ))
+    Ok(json!({ "applied": true, "committed": rt.agent().committed() }))
 }
 
-async fn measure(
-    State(rt): State<NodeRuntime>,
-    body: Result<Json<MeasureRequest>, JsonRejection>,
-) -> Result<Json<MeasureReport>, ApiError> {
-    let Json(req) = body.map_err(|r| bad_json(&r))?;
-    Ok(Json(rt.measure(&req).await?))
+async fn measure(rt: NodeRuntime, (): (), req: MeasureRequest) -> Result<MeasureReport, ApiError> {
+    Ok(rt.measure(&req).await?)
 }
 
-async fn graph(State(rt): State<NodeRuntime>) -> Result<impl IntoResponse, ApiError> {
-    Ok(Json(rt.graph().await?))
-}
-
-/// `POST /v1/apps/{app}/{action}`: stop, start, freeze or thaw an app.
-async fn app_action(
-    State(rt): State<NodeRuntime>,
-    UrlPath((app, action)): UrlPath<(String, String)>,
-) -> Result<impl IntoResponse, ApiError> {
-    match action.as_str() {
-        "stop" => rt.stop_app(&app).await?,
-        "start" => rt.start_app(&app).await?,
-        "freeze" => rt.freeze_app(&app).await?,
-        "thaw" => rt.thaw_app(&app).await?,
-        other => {
-            return Err(ApiError::NotFound(format!(
-                "no app action {other:?} (stop, start, freeze, thaw)"
-            )));
-        }
-    }
-    Ok(Json(json!({ "app": app, "done": action })))
-}
-
-/// Body of `PUT /v1/recordings/{name}`.
-#[derive(Debug, serde::Serialize, serde::Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct RecordingRequest {
-    pub topics: Vec<String>,
-}
-
-/// Reply of the recording endpoints.
-#[derive(Debug, serde::Serialize, serde::Deserialize)]
-pub struct RecordingReply {
-    pub path: Option<std::path::PathBuf>,
+async fn graph(rt: NodeRuntime, (): (), _: NoBody) -> Result<Graph, ApiError> {
+    Ok(rt.graph().await?)
 }
 
 async fn start_recording(
-    State(rt): State<NodeRuntime>,
-    UrlPath(name): UrlPath<String>,
-    body: Result<Json<RecordingRequest>, JsonRejection>,
-) -> Result<Json<RecordingReply>, ApiError> {
-    let Json(req) = body.map_err(|r| bad_json(&r))?;
+    rt: NodeRuntime,
+    name: String,
+    req: RecordingRequest,
+) -> Result<RecordingReply, ApiError> {
     let path = rt.start_recording(&name, &req.topics).await?;
-    Ok(Json(RecordingReply { path }))
+    Ok(RecordingReply { path })
 }
 
 async fn stop_recording(
-    State(rt): State<NodeRuntime>,
-    UrlPath(name): UrlPath<String>,
-) -> Result<Json<RecordingReply>, ApiError> {
+    rt: NodeRuntime,
+    name: String,
+    _: NoBody,
+) -> Result<RecordingReply, ApiError> {
     let path = rt.stop_recording(&name).await?;
-    Ok(Json(RecordingReply { path }))
+    Ok(RecordingReply { path })
 }
 
 async fn status(State(rt): State<NodeRuntime>) -> impl IntoResponse {

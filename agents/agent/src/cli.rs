@@ -9,10 +9,9 @@ use std::time::Duration;
 use configbot_cgroups::{CpuWeight, Layout, SubtreeRoot, open_backend};
 
 use configbot_procmon::{MonitorKind, Preference};
-use configbot_ros1::Ros1Config;
 
 use crate::error::{Error, Result};
-use crate::runtime::{NodeRuntime, RosOptions, RuntimeOptions};
+use crate::runtime::{DEFAULT_BACKEND, DataPlaneOptions, NodeRuntime, RuntimeOptions};
 use crate::spec::{AgentSettings, StackSpec};
 
 /// Which process monitor to use.
@@ -166,15 +165,14 @@ pub fn read_stack(path: &Path) -> Result<StackSpec> {
 pub fn options(args: &AgentArgs) -> Result<RuntimeOptions> {
     Ok(RuntimeOptions {
         settings: args.settings()?,
-        ros: (!args.no_ros).then(|| RosOptions {
-            config: Ros1Config {
-                master_uri: args.ros_master_uri.clone(),
-                bind_host: args.ros_bind.clone(),
-                adaptor_bind_host: args.ros_adaptor_bind.clone(),
-                ..Ros1Config::default()
-            },
+        data_plane: (!args.no_ros).then(|| DataPlaneOptions {
+            backend: DEFAULT_BACKEND.into(),
+            uri: args.ros_master_uri.clone(),
+            bind_host: args.ros_bind.clone(),
+            adaptor_bind_host: args.ros_adaptor_bind.clone(),
             db_path: args.ros_db.clone(),
             policy: configbot_api::policy::PolicyConfig::default(),
+            refresh_period: None,
         }),
         monitor: args.monitor.preference(),
     })

@@ -1,8 +1,9 @@
-//! `AgentClient`: the controller's handle on a remote node runtime, with the
-//! same async methods as [`crate::runtime::NodeRuntime`] (set_stack, apply,
-//! measure, graph, inventory, stop/start/freeze/thaw of apps, rosbag
-//! recordings, events), over the agent's HTTP API: a Unix socket (no token;
-//! the socket's mode is the access rule) or TCP with a bearer token. One HTTP/1 connection per call
+//! `AgentClient`: the controller's handle on a remote node runtime. It
+//! implements [`NodeApi`] like [`crate::runtime::NodeRuntime`] does, plus
+//! the inventory and the event stream, over the agent's HTTP API: a Unix
+//! socket (no token; the socket's mode is the access rule) or TCP with a
+//! bearer token. Every operation is one [`AgentClient::call`] of a route of
+//! [`crate::contract`]. One HTTP/1 connection per call
 //! (`configbot_http::client`), so a blocking `measure` never holds up other calls.
 
 use std::path::PathBuf;
@@ -15,12 +16,15 @@ use configbot_manifests::{ResourceConfig, RobotStack};
 use http_body_util::{BodyExt, Full};
 use hyper::body::{Bytes, Incoming};
 use hyper::{Method, Request, Response, StatusCode, header};
-use serde::Serialize;
-use serde::de::DeserializeOwned;
 use tokio::sync::broadcast;
 
 use crate::agent::NodeStatus;
-use crate::events::RuntimeEvent;
+use crate::contract::{
+    BoxFuture, Events, FreezeApp, GetGraph, Measure, NoBody, NodeApi, Nodes, PathParam, PutConfig,
+    PutStack, RecordingRequest, RequestBody, Route, StackBody, StartApp, StartRecording, StopApp,
+    StopRecording, ThawApp, Verb,
+};
+use crate::spec::StackSpec;
 
 /// Where the agent listens.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -207,121 +211,40 @@ impl AgentClient {
         }
     }
 
-    async fn call<T: DeserializeOwned>(
+    /// Sends route `R` with its path parameter and body; its answer.
+    pub async fn call<R: Route>(
         &self,
-        method: Method,
-        path: &str,
-        body: Option<&(impl Serialize + ?Sized)>,
-    ) -> ClientResult<T> {
-        let body =
-            body.map(serde_json::to_vec)
-                .transpose()
-                .map_err(|source| ClientError::Encode {
-                    path: path.to_owned(),
-                    source,
-                })?;
-        let resp = self.send(method.clone(), path, body).await?;
+        param: &R::Param,
+        req: &R::Request,
+    ) -> ClientResult<R::Response> {
+        let path = param.fill(R::PATH);
+        let method = method(R::METHOD);
+        let body = req
+            .encode()
+            .transpose()
+            .map_err(|source| ClientError::Encode {
+                path: path.clone(),
+                source,
+            })?;
+        let resp = self.send(method.clone(), &path, body).await?;
         let bytes = http::read_body(resp.into_body(), MAX_RESPONSE_BYTES)
             .await
-            .map_err(|e| self.transport_error(&method, path, e))?;
-        serde_json::from_slice(&bytes).map_err(|source| ClientError::Decode {
-            path: path.to_owned(),
-            source,
-        })
+            .map_err(|e| self.transport_error(&method, &path, e))?;
+        serde_json::from_slice(&bytes).map_err(|source| ClientError::Decode { path, source })
     }
 
-    /// `PUT /v1/stack`: replaces the stack at run time.
-    ///
-    /// A stack without apps (the controller's "no stack": the last one was
-    /// deleted) goes as an empty `StackSpec`: as a manifest it has no name
-    /// and fails validation, and the agent would go on running the old nodes.
-    pub async fn set_stack(&self, stack: &RobotStack) -> ClientResult<()> {
-        let res = if stack.spec.apps.is_empty() {
-            let empty = crate::spec::StackSpec::default();
-            self.call::<serde_json::Value>(Method::PUT, "/v1/stack", Some(&empty))
-                .await
-        } else {
-            self.call::<serde_json::Value>(Method::PUT, "/v1/stack", Some(stack))
-                .await
-        };
-        res.map(|_| ())
-    }
-
-    /// `PUT /v1/config`: CPU limits atomically, then adaptor rates.
-    pub async fn apply(&self, cfg: &ResourceConfig) -> ClientResult<()> {
-        self.call::<serde_json::Value>(Method::PUT, "/v1/config", Some(cfg))
-            .await
-            .map(|_| ())
-    }
-
-    /// `POST /v1/measure`: blocks for the window.
-    pub async fn measure(&self, req: &MeasureRequest) -> ClientResult<MeasureReport> {
-        self.call(Method::POST, "/v1/measure", Some(req)).await
-    }
-
-    /// `GET /v1/graph`.
-    pub async fn graph(&self) -> ClientResult<Graph> {
-        self.call(Method::GET, "/v1/graph", None::<&()>).await
-    }
-
-    /// `GET /v1/nodes`.
+    /// The node inventory.
     pub async fn inventory(&self) -> ClientResult<Vec<NodeStatus>> {
-        self.call(Method::GET, "/v1/nodes", None::<&()>).await
+        self.call::<Nodes>(&(), &NoBody).await
     }
 
-    /// `POST /v1/apps/{app}/stop`.
-    pub async fn stop_app(&self, app: &str) -> ClientResult<()> {
-        self.app_action(app, "stop").await
-    }
-
-    /// `POST /v1/apps/{app}/start`.
-    pub async fn start_app(&self, app: &str) -> ClientResult<()> {
-        self.app_action(app, "start").await
-    }
-
-    /// `POST /v1/apps/{app}/freeze`.
-    pub async fn freeze_app(&self, app: &str) -> ClientResult<()> {
-        self.app_action(app, "freeze").await
-    }
-
-    /// `POST /v1/apps/{app}/thaw`.
-    pub async fn thaw_app(&self, app: &str) -> ClientResult<()> {
-        self.app_action(app, "thaw").await
-    }
-
-    async fn app_action(&self, app: &str, action: &str) -> ClientResult<()> {
-        let path = format!("/v1/apps/{}/{action}", path_segment(app));
-        self.call::<serde_json::Value>(Method::POST, &path, None::<&()>)
-            .await
-            .map(|_| ())
-    }
-
-    /// `PUT /v1/recordings/{name}`: the bag's path, `None` without rosbag.
-    pub async fn start_recording(
-        &self,
-        name: &str,
-        topics: &[String],
-    ) -> ClientResult<Option<std::path::PathBuf>> {
-        let path = format!("/v1/recordings/{}", path_segment(name));
-        let body = crate::api::RecordingRequest {
-            topics: topics.to_vec(),
-        };
-        let r: crate::api::RecordingReply = self.call(Method::PUT, &path, Some(&body)).await?;
-        Ok(r.path)
-    }
-
-    /// `DELETE /v1/recordings/{name}`: the finished bag's path.
-    pub async fn stop_recording(&self, name: &str) -> ClientResult<Option<std::path::PathBuf>> {
-        let path = format!("/v1/recordings/{}", path_segment(name));
-        let r: crate::api::RecordingReply = self.call(Method::DELETE, &path, None::<&()>).await?;
-        Ok(r.path)
-    }
-
-    /// `GET /v1/events`: returns once the agent has subscribed, so every
-    /// event after this call arrives. The receiver closes when the
+    /// The agent's runtime events: returns once the agent has subscribed,
+    /// so every event after this call arrives. The receiver closes when the
     /// connection ends; lines that do not parse are skipped.
-    pub async fn events(&self) -> ClientResult<broadcast::Receiver<RuntimeEvent>> {
-        let resp = self.send(Method::GET, "/v1/events", None).await?;
+    pub async fn events(&self) -> ClientResult<broadcast::Receiver<<Events as Route>::Response>> {
+        let resp = self
+            .send(method(Events::METHOD), Events::PATH, None)
+            .await?;
         let (tx, rx) = broadcast::channel(4096);
         tokio::spawn(async move {
             let mut body = resp.into_body();
@@ -333,7 +256,7 @@ impl AgentClient {
                 buf.extend_from_slice(data);
                 while let Some(i) = buf.iter().position(|b| *b == b'\n') {
                     let line: Vec<u8> = buf.drain(..=i).collect();
-                    if let Ok(ev) = serde_json::from_slice::<RuntimeEvent>(&line)
+                    if let Ok(ev) = serde_json::from_slice(&line)
                         && tx.send(ev).is_err()
                     {
                         return; // every receiver is gone
@@ -343,28 +266,91 @@ impl AgentClient {
         });
         Ok(rx)
     }
-}
 
-/// App names are DNS labels; anything else is percent-encoded.
-fn path_segment(s: &str) -> String {
-    let mut out = String::with_capacity(s.len());
-    for b in s.bytes() {
-        if b.is_ascii_alphanumeric() || b == b'-' || b == b'_' || b == b'.' {
-            out.push(char::from(b));
-        } else {
-            out.push_str(&format!("%{b:02X}"));
-        }
+    /// Calls the app route `R` on `app`.
+    fn app<R: Route<Param = String, Request = NoBody>>(
+        &self,
+        app: &str,
+    ) -> BoxFuture<'_, ClientResult<()>> {
+        let app = app.to_owned();
+        Box::pin(async move { self.call::<R>(&app, &NoBody).await.map(|_| ()) })
     }
-    out
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
+fn method(v: Verb) -> Method {
+    match v {
+        Verb::Get => Method::GET,
+        Verb::Put => Method::PUT,
+        Verb::Post => Method::POST,
+        Verb::Delete => Method::DELETE,
+    }
+}
 
-    #[test]
-    fn app_names_are_escaped_in_paths() {
-        assert_eq!(path_segment("obj-detector"), "obj-detector");
-        assert_eq!(path_segment("a/b c"), "a%2Fb%20c");
+impl NodeApi for AgentClient {
+    type Error = ClientError;
+
+    fn apply<'a>(&'a self, cfg: &'a ResourceConfig) -> BoxFuture<'a, ClientResult<()>> {
+        Box::pin(async move { self.call::<PutConfig>(&(), cfg).await.map(|_| ()) })
+    }
+
+    fn measure<'a>(
+        &'a self,
+        req: &'a MeasureRequest,
+    ) -> BoxFuture<'a, ClientResult<MeasureReport>> {
+        Box::pin(self.call::<Measure>(&(), req))
+    }
+
+    fn graph(&self) -> BoxFuture<'_, ClientResult<Graph>> {
+        Box::pin(self.call::<GetGraph>(&(), &NoBody))
+    }
+
+    fn stop_app<'a>(&'a self, app: &'a str) -> BoxFuture<'a, ClientResult<()>> {
+        self.app::<StopApp>(app)
+    }
+
+    fn start_app<'a>(&'a self, app: &'a str) -> BoxFuture<'a, ClientResult<()>> {
+        self.app::<StartApp>(app)
+    }
+
+    fn freeze_app<'a>(&'a self, app: &'a str) -> BoxFuture<'a, ClientResult<()>> {
+        self.app::<FreezeApp>(app)
+    }
+
+    fn thaw_app<'a>(&'a self, app: &'a str) -> BoxFuture<'a, ClientResult<()>> {
+        self.app::<ThawApp>(app)
+    }
+
+    fn start_recording<'a>(
+        &'a self,
+        name: &'a str,
+        topics: &'a [String],
+    ) -> BoxFuture<'a, ClientResult<Option<PathBuf>>> {
+        Box::pin(async move {
+            let body = RecordingRequest {
+                topics: topics.to_vec(),
+            };
+            let r = self.call::<StartRecording>(&name.to_owned(), &body).await?;
+            Ok(r.path)
+        })
+    }
+
+    fn stop_recording<'a>(&'a self, name: &'a str) -> BoxFuture<'a, ClientResult<Option<PathBuf>>> {
+        Box::pin(async move {
+            let r = self
+                .call::<StopRecording>(&name.to_owned(), &NoBody)
+                .await?;
+            Ok(r.path)
+        })
+    }
+
+    /// No stack, or a stack without apps (the last one was deleted), goes
+    /// as an empty `StackSpec`: as a manifest it has no name and fails
+    /// validation, and the agent would go on running the old nodes.
+    fn set_stack<'a>(&'a self, stack: Option<&'a RobotStack>) -> BoxFuture<'a, ClientResult<()>> {
+        let body = match stack {
+            Some(s) if !s.spec.apps.is_empty() => StackBody::Manifest(Box::new(s.clone())),
+            _ => StackBody::Spec(StackSpec::default()),
+        };
+        Box::pin(async move { self.call::<PutStack>(&(), &body).await.map(|_| ()) })
     }
 }

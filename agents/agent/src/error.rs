@@ -47,12 +47,15 @@ pub enum Error {
         #[source]
         source: configbot_dataplane::DataPlaneError,
     },
-    #[error("starting the ros 1 data plane at {master_uri}")]
-    Ros {
-        master_uri: String,
+    #[error("starting the {backend} data plane at {uri}")]
+    DataPlane {
+        backend: &'static str,
+        uri: String,
         #[source]
-        source: configbot_ros1::Ros1Error,
+        source: Box<dyn std::error::Error + Send + Sync>,
     },
+    #[error("no data-plane backend {name:?} (known: {known})")]
+    UnknownDataPlane { name: String, known: String },
     #[error("starting the process monitor")]
     Monitor(#[source] configbot_procmon::MonitorError),
     #[error("stack manifest {source_name} is invalid: {message}")]

@@ -13,6 +13,7 @@ pub mod agent;
 pub mod api;
 pub mod cli;
 pub mod client;
+pub mod contract;
 pub mod error;
 pub mod events;
 pub mod limits;
@@ -28,9 +29,10 @@ mod supervise;
 
 pub use agent::stack::{StackDiff, diff_stacks};
 pub use agent::{Agent, ConfigUpdate, NodeStatus};
+pub use contract::NodeApi;
 pub use error::{Error, Result};
 pub use events::{AgentEvent, ProcEvent, ProcEventKind, RuntimeEvent};
-pub use runtime::{NodeRuntime, RosOptions, RuntimeOptions};
+pub use runtime::{DataPlaneOptions, NodeRuntime, RuntimeOptions};
 pub use spec::{
     AgentSettings, AppSpec, MatchSpec, NodeSource, NodeSpec, RestartPolicy, RunSpec, StackSpec,
 };

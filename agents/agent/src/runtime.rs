@@ -1,7 +1,8 @@
 //! The node runtime: one daemon that owns the robot. [`NodeRuntime`] joins
 //! the [`Agent`] (per-node cgroups, run/match processes), the process monitor
-//! (`configbot-procmon`: eBPF → proc connector → /proc scan) and the ROS 1 data
-//! plane (`configbot-ros1`: the agent is the ROS master). Glue only:
+//! (`configbot-procmon`: eBPF → proc connector → /proc scan) and a data plane
+//! (a `dyn DataPlane` started by name from [`backends`]; ROS 1's
+//! `configbot-ros1` makes the agent the ROS master). Glue only:
 //!
 //! - every process event goes to [`Agent::process_event`] (immediate `match`
 //!   adoption), wakes the ROS graph monitor and becomes a [`RuntimeEvent`];
@@ -13,10 +14,11 @@
 //! - `apply` (module `apply`) and `measure` (module `measure`);
 //! - rosbag recordings on request (module [`record`]).
 //!
-//! The controller calls the same methods on an embedded runtime and, over
-//! HTTP, on [`crate::client::AgentClient`].
+//! The controller drives it through [`NodeApi`], which
+//! [`crate::client::AgentClient`] implements over HTTP.
 
 mod apply;
+pub mod backends;
 mod measure;
 pub mod record;
 
@@ -26,20 +28,22 @@ use std::sync::{Arc, Mutex, MutexGuard, RwLock};
 use std::time::Duration;
 
 use configbot_api::graph::{EdgeId, Graph, GraphEvent};
-use configbot_api::policy::{AppOf, PolicyConfig};
+use configbot_api::measure::{MeasureReport, MeasureRequest};
+use configbot_api::policy::AppOf;
 use configbot_cgroups::CgroupBackend;
 use configbot_dataplane::DataPlane;
-use configbot_manifests::RobotStack;
+use configbot_manifests::{ResourceConfig, RobotStack};
 use configbot_procmon::{MonitorConfig, MonitorHandle, Preference, ProcessMonitor};
-use configbot_ros1::{Ros1Config, Ros1DataPlane, placement_from_apps};
 use prometheus::{GaugeVec, Opts, Registry, TextEncoder};
 use tokio::sync::broadcast;
 use tokio::task::JoinHandle;
 
 pub use self::apply::{Plan, plan};
+pub use self::backends::{DEFAULT_BACKEND, DataPlaneOptions};
 pub use self::measure::{Reading, boundaries, series};
 use crate::agent::stack::StackDiff;
 use crate::agent::{Agent, NodeStatus};
+use crate::contract::{BoxFuture, NodeApi};
 use crate::error::{Error, Result};
 use crate::events::{AgentEvent, ProcEvent, ProcEventKind, RuntimeEvent};
 use crate::spec::{AgentSettings, NodeSource, StackSpec};
@@ -47,24 +51,12 @@ use crate::spec::{AgentSettings, NodeSource, StackSpec};
 /// Shortest gap between two graph wake-ups caused by process events.
 pub const WAKE_GAP: Duration = Duration::from_millis(50);
 
-/// The ROS 1 part of the runtime.
-#[derive(Debug, Clone)]
-pub struct RosOptions {
-    /// Master URI, ports and periods (its `placement` is set by the runtime).
-    pub config: Ros1Config,
-    /// SQLite file of registrations, parameters and adaptor settings.
-    pub db_path: PathBuf,
-    /// Adaptor placement policy (include/exclude lists; the rate rule is the
-    /// tuner's business).
-    pub policy: PolicyConfig,
-}
-
 /// Everything [`NodeRuntime::start`] needs besides the cgroup backend.
 #[derive(Debug, Clone)]
 pub struct RuntimeOptions {
     pub settings: AgentSettings,
-    /// `None`: no ROS data plane (`--no-ros`).
-    pub ros: Option<RosOptions>,
+    /// `None`: no data plane (`--no-ros`).
+    pub data_plane: Option<DataPlaneOptions>,
     /// `None`: no process monitor; `match` nodes are found by the agent's scan.
     pub monitor: Option<Preference>,
 }
@@ -77,7 +69,7 @@ pub struct NodeRuntime {
 
 struct Inner {
     agent: Agent,
-    dp: Option<Arc<Ros1DataPlane>>,
+    dp: Option<Arc<dyn DataPlane>>,
     /// The stack's apps as the adaptor placement reads them.
     apps: Arc<RwLock<AppMap>>,
     events: broadcast::Sender<RuntimeEvent>,
@@ -100,7 +92,7 @@ impl std::fmt::Debug for Inner {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("NodeRuntime")
             .field("agent", &self.agent)
-            .field("ros", &self.dp.as_ref().map(|d| d.master_uri().to_owned()))
+            .field("data_plane", &self.dp.as_ref().map(|d| d.uri().to_owned()))
             .field("monitor", &self.monitor_status)
             .finish_non_exhaustive()
     }
@@ -171,21 +163,24 @@ fn app_map(stack: &StackSpec) -> AppMap {
     m
 }
 
-/// `run` nodes get `ROS_MASTER_URI` of the agent's master unless they set one.
-fn with_master_uri(mut stack: StackSpec, master_uri: Option<&str>) -> StackSpec {
-    let Some(uri) = master_uri else {
-        return stack;
-    };
+/// `run` nodes get the data plane's environment (ROS 1: `ROS_MASTER_URI`
+/// of the agent's master) unless they set it.
+fn with_node_env(mut stack: StackSpec, env: &[(String, String)]) -> StackSpec {
     for app in &mut stack.apps {
         for n in &mut app.nodes {
             if let NodeSource::Run(r) = &mut n.source {
-                r.env
-                    .entry("ROS_MASTER_URI".into())
-                    .or_insert_with(|| uri.to_owned());
+                for (k, v) in env {
+                    r.env.entry(k.clone()).or_insert_with(|| v.clone());
+                }
             }
         }
     }
     stack
+}
+
+/// The environment of [`with_node_env`]: none without a data plane.
+fn node_env(dp: Option<&dyn DataPlane>) -> Vec<(String, String)> {
+    dp.map(DataPlane::node_env).unwrap_or_default()
 }
 
 impl NodeRuntime {
@@ -198,20 +193,11 @@ impl NodeRuntime {
     ) -> Result<Self> {
         let registry = Registry::new();
         let apps = Arc::new(RwLock::new(app_map(&stack)));
-        let dp = match opts.ros {
+        let dp = match &opts.data_plane {
             None => None,
-            Some(ros) => {
-                let of: Arc<dyn AppOf + Send + Sync> = Arc::new(LiveApps(apps.clone()));
-                let mut cfg = ros.config;
-                cfg.placement = Some(placement_from_apps(of, ros.policy));
-                let master_uri = cfg.master_uri.clone();
-                let dp = Ros1DataPlane::start(cfg, &ros.db_path, &registry)
-                    .await
-                    .map_err(|source| Error::Ros { master_uri, source })?;
-                Some(Arc::new(dp))
-            }
+            Some(o) => Some(backends::start(o, Arc::new(LiveApps(apps.clone())), &registry).await?),
         };
-        let stack = with_master_uri(stack, dp.as_ref().map(|d| d.master_uri()));
+        let stack = with_node_env(stack, &node_env(dp.as_deref()));
         let agent = Agent::start(backend, opts.settings, stack).await?;
         let (monitor, stream) = match opts.monitor {
             None => (None, None),
@@ -261,7 +247,7 @@ impl NodeRuntime {
 
     fn assemble(
         agent: Agent,
-        dp: Option<Arc<Ros1DataPlane>>,
+        dp: Option<Arc<dyn DataPlane>>,
         apps: Arc<RwLock<AppMap>>,
         registry: Registry,
         monitor: Option<MonitorHandle>,
@@ -336,14 +322,15 @@ impl NodeRuntime {
         &self.inner.agent
     }
 
-    /// The data plane, when ROS is enabled.
+    /// The data plane, when enabled.
     pub fn data_plane(&self) -> Option<Arc<dyn DataPlane>> {
-        self.inner.dp.clone().map(|d| d as Arc<dyn DataPlane>)
+        self.inner.dp.clone()
     }
 
-    /// The ROS master URI nodes should use, when ROS is enabled.
+    /// The data plane's URI (ROS 1: the master URI nodes should use), when
+    /// enabled.
     pub fn master_uri(&self) -> Option<String> {
-        self.inner.dp.as_ref().map(|d| d.master_uri().to_owned())
+        self.inner.dp.as_ref().map(|d| d.uri().to_owned())
     }
 
     /// The process monitor in use and why better ones failed.
@@ -389,7 +376,7 @@ impl NodeRuntime {
 
     /// Graph changes become events and trigger ROS adoption; a 1 s tick
     /// catches pids that appeared without a change event reaching us.
-    async fn graph_loop(&self, dp: Arc<Ros1DataPlane>) {
+    async fn graph_loop(&self, dp: Arc<dyn DataPlane>) {
         let mut rx = dp.subscribe_events();
         let mut tick = tokio::time::interval(Duration::from_secs(1));
         loop {
@@ -462,19 +449,12 @@ impl NodeRuntime {
         Ok(text)
     }
 
-    /// Replaces the stack from a `RobotStack` manifest (see [`Self::set_stack_spec`]).
-    pub async fn set_stack(&self, stack: &RobotStack) -> Result<()> {
-        self.set_stack_spec(StackSpec::from_manifest(stack)?)
-            .await
-            .map(|_| ())
-    }
-
     /// Replaces the stack at run time: new nodes get cgroups and start,
     /// removed nodes stop and lose their cgroup, changed nodes restart, and
     /// the adaptor placement's app map follows.
     pub async fn set_stack_spec(&self, stack: StackSpec) -> Result<StackDiff> {
         let _serial = self.inner.ops.lock().await;
-        let stack = with_master_uri(stack, self.master_uri().as_deref());
+        let stack = with_node_env(stack, &node_env(self.inner.dp.as_deref()));
         let map = app_map(&stack);
         let diff = self.inner.agent.set_stack(stack).await?;
         *self
@@ -486,71 +466,9 @@ impl NodeRuntime {
         Ok(diff)
     }
 
-    /// The ROS graph (empty without ROS).
-    pub async fn graph(&self) -> Result<Graph> {
-        Ok(self
-            .inner
-            .dp
-            .as_ref()
-            .map(|d| d.graph())
-            .unwrap_or_default())
-    }
-
     /// The node inventory.
     pub async fn inventory(&self) -> Result<Vec<NodeStatus>> {
         Ok(self.inner.agent.inventory())
-    }
-
-    /// Stops every node of `app` and keeps it stopped.
-    pub async fn stop_app(&self, app: &str) -> Result<()> {
-        self.inner.agent.stop_app(app).await
-    }
-
-    /// Starts `app` again.
-    pub async fn start_app(&self, app: &str) -> Result<()> {
-        self.inner.agent.start_app(app)?;
-        self.adopt_ros_nodes();
-        Ok(())
-    }
-
-    /// Freezes every node of `app` (SIGSTOP), see [`Agent::freeze_app`].
-    pub async fn freeze_app(&self, app: &str) -> Result<()> {
-        self.inner.agent.freeze_app(app)
-    }
-
-    /// Thaws every node of `app` (SIGCONT).
-    pub async fn thaw_app(&self, app: &str) -> Result<()> {
-        self.inner.agent.thaw_app(app)
-    }
-
-    /// Starts a rosbag recording of `topics` named `name` (see [`record`]);
-    /// the bag's path, or `None` when rosbag is not installed or there is
-    /// nothing to record.
-    pub async fn start_recording(&self, name: &str, topics: &[String]) -> Result<Option<PathBuf>> {
-        let master = self.master_uri().ok_or_else(|| Error::NoDataPlane {
-            what: "a rosbag recording".into(),
-        })?;
-        let started = self.inner.recordings.start(name, topics, &master).await?;
-        if let Some((p, true)) = &started {
-            self.emit(RuntimeEvent::Agent(AgentEvent::RecordingStarted {
-                name: name.to_owned(),
-                path: p.clone(),
-                topics: topics.to_vec(),
-            }));
-        }
-        Ok(started.map(|(p, _)| p))
-    }
-
-    /// Stops the recording `name`; the finished bag's path, if one was running.
-    pub async fn stop_recording(&self, name: &str) -> Result<Option<PathBuf>> {
-        let path = self.inner.recordings.stop(name).await;
-        if let Some(p) = &path {
-            self.emit(RuntimeEvent::Agent(AgentEvent::RecordingStopped {
-                name: name.to_owned(),
-                path: p.clone(),
-            }));
-        }
-        Ok(path)
     }
 
     /// Runtime events from now on.
@@ -578,6 +496,92 @@ impl NodeRuntime {
     }
 }
 
+/// The controller's operations; `apply` and `measure` live in their modules.
+impl NodeApi for NodeRuntime {
+    type Error = Error;
+
+    fn apply<'a>(&'a self, cfg: &'a ResourceConfig) -> BoxFuture<'a, Result<()>> {
+        Box::pin(self.apply_config(cfg))
+    }
+
+    fn measure<'a>(&'a self, req: &'a MeasureRequest) -> BoxFuture<'a, Result<MeasureReport>> {
+        Box::pin(self.measure_window(req))
+    }
+
+    fn graph(&self) -> BoxFuture<'_, Result<Graph>> {
+        let graph = self.inner.dp.as_ref().map(|d| d.graph());
+        Box::pin(async move { Ok(graph.unwrap_or_default()) })
+    }
+
+    fn stop_app<'a>(&'a self, app: &'a str) -> BoxFuture<'a, Result<()>> {
+        Box::pin(self.inner.agent.stop_app(app))
+    }
+
+    fn start_app<'a>(&'a self, app: &'a str) -> BoxFuture<'a, Result<()>> {
+        Box::pin(async move {
+            self.inner.agent.start_app(app)?;
+            self.adopt_ros_nodes();
+            Ok(())
+        })
+    }
+
+    /// See [`Agent::freeze_app`].
+    fn freeze_app<'a>(&'a self, app: &'a str) -> BoxFuture<'a, Result<()>> {
+        Box::pin(async move { self.inner.agent.freeze_app(app) })
+    }
+
+    fn thaw_app<'a>(&'a self, app: &'a str) -> BoxFuture<'a, Result<()>> {
+        Box::pin(async move { self.inner.agent.thaw_app(app) })
+    }
+
+    /// See [`record`]: `None` when rosbag is not installed or there is
+    /// nothing to record.
+    fn start_recording<'a>(
+        &'a self,
+        name: &'a str,
+        topics: &'a [String],
+    ) -> BoxFuture<'a, Result<Option<PathBuf>>> {
+        Box::pin(async move {
+            let master = self.master_uri().ok_or_else(|| Error::NoDataPlane {
+                what: "a rosbag recording".into(),
+            })?;
+            let started = self.inner.recordings.start(name, topics, &master).await?;
+            if let Some((p, true)) = &started {
+                self.emit(RuntimeEvent::Agent(AgentEvent::RecordingStarted {
+                    name: name.to_owned(),
+                    path: p.clone(),
+                    topics: topics.to_vec(),
+                }));
+            }
+            Ok(started.map(|(p, _)| p))
+        })
+    }
+
+    fn stop_recording<'a>(&'a self, name: &'a str) -> BoxFuture<'a, Result<Option<PathBuf>>> {
+        Box::pin(async move {
+            let path = self.inner.recordings.stop(name).await;
+            if let Some(p) = &path {
+                self.emit(RuntimeEvent::Agent(AgentEvent::RecordingStopped {
+                    name: name.to_owned(),
+                    path: p.clone(),
+                }));
+            }
+            Ok(path)
+        })
+    }
+
+    /// See [`NodeRuntime::set_stack_spec`].
+    fn set_stack<'a>(&'a self, stack: Option<&'a RobotStack>) -> BoxFuture<'a, Result<()>> {
+        Box::pin(async move {
+            let spec = match stack {
+                Some(s) => StackSpec::from_manifest(s)?,
+                None => StackSpec::default(),
+            };
+            self.set_stack_spec(spec).await.map(|_| ())
+        })
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -595,7 +599,11 @@ mod tests {
         assert_eq!(m.is_core("/t"), Some(true));
         assert_eq!(m.is_core("/listener"), Some(false));
         assert!(m.claimed.is_empty());
-        let s = with_master_uri(s, Some("http://localhost:5/"));
+        let uri = (
+            "ROS_MASTER_URI".to_owned(),
+            "http://localhost:5/".to_owned(),
+        );
+        let s = with_node_env(s, &[uri]);
         let env = |i: usize| match &s.apps[0].nodes[i].source {
             NodeSource::Run(r) => r.env.get("ROS_MASTER_URI").cloned(),
             NodeSource::Match(_) => None,

@@ -11,6 +11,7 @@ use std::time::Duration;
 use axum::body::Body;
 use axum::http::{Request, StatusCode};
 use common::*;
+use configbot_agent::NodeApi;
 use configbot_agent::api::{bind_unix, router, serve_tcp, serve_unix};
 use http_body_util::BodyExt;
 use tower::ServiceExt;
@@ -386,9 +387,9 @@ async fn listeners_refuse_nesting_bombs_and_100_mb_bodies_and_go_on() {
     }
 }
 
-/// The controller's "no stack" (an empty RobotStack with no name, sent when
-/// the last stack is deleted) clears a remote agent's stack: the agent used
-/// to refuse it (400: a manifest without name and apps) and kept the nodes.
+/// The controller's "no stack" (`set_stack(None)`, sent when the last stack
+/// is deleted) clears a remote agent's stack: the agent used to refuse it as
+/// a RobotStack without name and apps (400) and kept the nodes.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn client_clears_the_stack_with_an_empty_one() {
     let mut env = Env::new();
@@ -399,16 +400,6 @@ async fn client_clears_the_stack_with_an_empty_one() {
     tokio::spawn(serve_unix(rt, listener));
     let client = configbot_agent::client::AgentClient::unix(&path);
     assert_eq!(client.inventory().await.unwrap().len(), 2);
-    let empty = configbot_manifests::RobotStack {
-        api_version: configbot_manifests::API_VERSION.into(),
-        kind: "RobotStack".into(),
-        metadata: Default::default(),
-        spec: configbot_manifests::RobotStackSpec {
-            robot: Default::default(),
-            apps: Vec::new(),
-        },
-        status: None,
-    };
-    client.set_stack(&empty).await.unwrap();
+    client.set_stack(None).await.unwrap();
     assert!(client.inventory().await.unwrap().is_empty());
 }

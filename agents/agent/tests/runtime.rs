@@ -6,7 +6,7 @@ mod common;
 
 use std::time::{Duration, Instant};
 
-use configbot_agent::{AgentEvent, RuntimeEvent, StackSpec};
+use configbot_agent::{AgentEvent, NodeApi, RuntimeEvent, StackSpec};
 use configbot_api::measure::{MeasureRequest, Probe};
 use configbot_manifests::{AdaptorRate, ResourceConfig};
 use configbot_procmon::{MonitorKind, Preference};
@@ -42,7 +42,7 @@ async fn ros_nodes_are_adopted_limited_adapted_and_measured() {
           run: {{command: /usr/bin/python3, args: ["-c", "while True: pass"]}}
 "#
     )));
-    rt.set_stack(&stack).await.unwrap();
+    rt.set_stack(Some(&stack)).await.unwrap();
     // Limit the busy node at once (keeps the shared machine free).
     let cfg = ResourceConfig {
         cpu: [("/burner".to_string(), 0.1)].into(),
@@ -215,16 +215,16 @@ async fn set_stack_adds_removes_and_restarts_nodes_at_run_time() {
         )))
     };
     let rt = env.start(false, None, StackSpec::default()).await;
-    rt.set_stack(&one("")).await.unwrap();
+    rt.set_stack(Some(&one(""))).await.unwrap();
     wait_until_async("/one running", T, RT_POLL, async || {
         cgroup_pids(&rt, "/one").len() == 1
     })
     .await;
     let one_pid = cgroup_pids(&rt, "/one")[0];
 
-    rt.set_stack(&one(
+    rt.set_stack(Some(&one(
         "        - name: /two\n          run: {command: /bin/sleep, args: [\"301\"]}",
-    ))
+    )))
     .await
     .unwrap();
     wait_until_async("/two running", T, RT_POLL, async || {
@@ -235,9 +235,9 @@ async fn set_stack_adds_removes_and_restarts_nodes_at_run_time() {
     let two_pid = cgroup_pids(&rt, "/two")[0];
 
     // /two's command changes: restarted with a new process.
-    rt.set_stack(&one(
+    rt.set_stack(Some(&one(
         "        - name: /two\n          run: {command: /bin/sleep, args: [\"302\"]}",
-    ))
+    )))
     .await
     .unwrap();
     // The new process joins its cgroup before it execs, so wait for the exec too.
@@ -257,7 +257,7 @@ async fn set_stack_adds_removes_and_restarts_nodes_at_run_time() {
           run: {command: /bin/sleep, args: ["302"]}
 "#,
     ));
-    rt.set_stack(&only_two).await.unwrap();
+    rt.set_stack(Some(&only_two)).await.unwrap();
     assert!(
         !rt.agent().backend().exists(&node("/one")),
         "cgroup of /one left"
@@ -370,7 +370,7 @@ async fn http_api_and_client_round_trip_over_the_unix_socket() {
         "cam",
         &[("/camera", "talker.py", &["camera", "/image", "20"])],
     )));
-    client.set_stack(&stack).await.unwrap();
+    client.set_stack(Some(&stack)).await.unwrap();
     let camera_pid = wait_until_async(
         "the camera publishing /image in the graph",
         T,
@@ -586,7 +586,7 @@ async fn a_rosbag_recording_over_the_api_holds_the_topics_messages() {
         "cam",
         &[("/camera", "talker.py", &["camera", "/image", "20"])],
     )));
-    client.set_stack(&stack).await.unwrap();
+    client.set_stack(Some(&stack)).await.unwrap();
     let subscribers = |rt: &configbot_agent::NodeRuntime| {
         let g = rt.data_plane().map(|d| d.graph()).unwrap_or_default();
         g.topics
@@ -679,7 +679,7 @@ async fn a_recording_stops_at_its_size_cap() {
             &["camera", "/image", "20", &PAD.to_string()],
         )],
     )));
-    rt.set_stack(&stack).await.unwrap();
+    rt.set_stack(Some(&stack)).await.unwrap();
     let published = || {
         let g = rt.data_plane().map(|d| d.graph()).unwrap_or_default();
         g.topics

@@ -7,7 +7,7 @@ mod common;
 
 use std::time::Duration;
 
-use configbot_agent::NodeRuntime;
+use configbot_agent::{NodeApi, NodeRuntime};
 use configbot_api::measure::{MeasureRequest, Probe};
 
 use common::rt::{RT_POLL, RtEnv, graph_pid, robot_stack, stack_yaml};
@@ -65,7 +65,7 @@ async fn meters_follow_nodes_restarted_by_a_stack_switch() {
             ],
         )))
     };
-    rt.set_stack(&stack("10", "a")).await.unwrap();
+    rt.set_stack(Some(&stack("10", "a"))).await.unwrap();
     wait_until_async("/src and /nav registered", T, RT_POLL, async || {
         graph_pid(&rt, "/src").is_some() && graph_pid(&rt, "/nav").is_some()
     })
@@ -77,18 +77,18 @@ async fn meters_follow_nodes_restarted_by_a_stack_switch() {
     );
 
     // The relay changes: restarted under the same name.
-    rt.set_stack(&stack("10", "b")).await.unwrap();
+    rt.set_stack(Some(&stack("10", "b"))).await.unwrap();
     let nav = restarted(&rt, "/nav", nav).await;
     flows(&rt, "/out", "after /nav restarted").await;
 
     // The publisher of /in changes: restarted under the same name.
-    rt.set_stack(&stack("15", "b")).await.unwrap();
+    rt.set_stack(Some(&stack("15", "b"))).await.unwrap();
     let src = restarted(&rt, "/src", src).await;
     flows(&rt, "/in", "after /src restarted").await;
     flows(&rt, "/out", "after /src restarted").await;
 
     // Back to the first stack: both restart.
-    rt.set_stack(&stack("10", "a")).await.unwrap();
+    rt.set_stack(Some(&stack("10", "a"))).await.unwrap();
     restarted(&rt, "/src", src).await;
     restarted(&rt, "/nav", nav).await;
     flows(&rt, "/in", "after switching back").await;

@@ -65,4 +65,10 @@ pub trait DataPlane: Send + Sync {
     fn subscribe_events(&self) -> tokio::sync::broadcast::Receiver<GraphEvent>;
     /// Refreshes the graph (pids, liveness) now instead of at the next period.
     fn wake(&self);
+    /// Where the middleware's clients connect (ROS 1: the master URI), for
+    /// status and tools such as rosbag.
+    fn uri(&self) -> &str;
+    /// The environment a node the agent starts needs to join this data plane
+    /// (ROS 1: `ROS_MASTER_URI`); a node's own setting of a variable wins.
+    fn node_env(&self) -> Vec<(String, String)>;
 }

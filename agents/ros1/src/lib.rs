@@ -528,6 +528,14 @@ impl DataPlane for Ros1DataPlane {
     fn wake(&self) {
         self.core.wake.notify_one();
     }
+
+    fn uri(&self) -> &str {
+        self.master_uri()
+    }
+
+    fn node_env(&self) -> Vec<(String, String)> {
+        vec![("ROS_MASTER_URI".to_owned(), self.master_uri().to_owned())]
+    }
 }
 
 #[cfg(test)]

@@ -24,7 +24,7 @@ use crate::client::{Client, Endpoint};
 use crate::report::svg::{Chart, Mark, Rule, Series, colors};
 use crate::robot::EmbeddedRobot;
 use crate::server::{Server, ServerConfig};
-use crate::tuning::robot::Robot;
+use crate::tuning::robot::{NodeApi, Robot};
 use configbot_tuning::measure::{self, MetricDef};
 
 /// The example stacks, embedded so the demo runs from any directory.

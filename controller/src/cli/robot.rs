@@ -5,7 +5,7 @@ use std::path::Path;
 use std::sync::Arc;
 
 use configbot_agent::NodeRuntime;
-use configbot_agent::runtime::{RosOptions, RuntimeOptions};
+use configbot_agent::runtime::{DEFAULT_BACKEND, DataPlaneOptions, RuntimeOptions};
 use configbot_cgroups::{CpuWeight, Layout, SubtreeRoot, open_backend};
 
 use super::RobotArgs;
@@ -22,15 +22,14 @@ pub fn runtime_options(dir: &Path, args: &RobotArgs) -> anyhow::Result<RuntimeOp
             subtree_cpu_weight: args.subtree_cpu_weight.map(CpuWeight::new).transpose()?,
             ..configbot_agent::AgentSettings::default()
         },
-        ros: (!args.no_ros).then(|| RosOptions {
-            config: configbot_ros1::Ros1Config {
-                master_uri: args.ros_master_uri.clone(),
-                bind_host: args.ros_bind.clone(),
-                adaptor_bind_host: args.ros_adaptor_bind.clone(),
-                ..configbot_ros1::Ros1Config::default()
-            },
+        data_plane: (!args.no_ros).then(|| DataPlaneOptions {
+            backend: DEFAULT_BACKEND.into(),
+            uri: args.ros_master_uri.clone(),
+            bind_host: args.ros_bind.clone(),
+            adaptor_bind_host: args.ros_adaptor_bind.clone(),
             db_path: dir.join("ros1.db"),
             policy: configbot_api::policy::PolicyConfig::default(),
+            refresh_period: None,
         }),
         monitor: args.monitor.preference(),
     })

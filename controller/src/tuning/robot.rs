@@ -1,26 +1,20 @@
-//! The tuning loop's only view of a robot: the operations of the node
-//! runtime — apply a config, measure a window, read the ROS graph,
-//! stop/start/freeze an app, record a rosbag, and a stream of runtime events
-//! — plus the clock the loop waits on, injected so tests run on simulated
-//! time.
+//! The tuning loop's only view of a robot: the node runtime's operations
+//! (the agent's [`NodeApi`]: apply a config, measure a window, read the ROS
+//! graph, stop/start/freeze an app, record a rosbag, run a stack) with
+//! [`RobotError`] as their error, a stream of runtime events, and the clock
+//! the loop waits on, injected so tests run on simulated time.
 //!
-//! The trait is dyn-compatible (boxed futures), so the server holds an
+//! The traits are dyn-compatible (boxed futures), so the server holds an
 //! `Arc<dyn Robot>`; `crate::robot` implements it for the embedded
 //! `NodeRuntime` and the remote `AgentClient`, [`super::sim`] for the
 //! simulated robot the tests drive.
 
-use std::future::Future;
-use std::pin::Pin;
 use std::time::Duration;
 
-use configbot_api::graph::Graph;
-use configbot_api::measure::{MeasureReport, MeasureRequest};
-use configbot_manifests::ResourceConfig;
+pub use configbot_agent::NodeApi;
+pub use configbot_agent::contract::BoxFuture;
 use configbot_tuning::monitor::RobotEvent;
 use tokio::sync::broadcast;
-
-/// A boxed, sendable future (keeps [`Robot`] dyn-compatible).
-pub type BoxFuture<'a, T> = Pin<Box<dyn Future<Output = T> + Send + 'a>>;
 
 /// A robot operation failed.
 #[derive(Debug, thiserror::Error)]
@@ -53,50 +47,12 @@ impl RobotError {
     }
 }
 
-/// A robot as the tuning loop drives it. Every method may be called
+/// A robot as the tuning loop drives it: the node runtime's operations,
+/// failing with [`RobotError`], and its events. Every method may be called
 /// concurrently from one runner task only; implementations must be cheap to share.
-pub trait Robot: Send + Sync {
-    /// Apply CPU limits (atomically) then adaptor rates; nodes and edges not
-    /// listed become unlimited.
-    fn apply<'a>(&'a self, cfg: &'a ResourceConfig) -> BoxFuture<'a, Result<(), RobotError>>;
-    /// Measure `req.probes` over `req.duration_ms` (blocks for the window).
-    fn measure<'a>(
-        &'a self,
-        req: &'a MeasureRequest,
-    ) -> BoxFuture<'a, Result<MeasureReport, RobotError>>;
-    /// The current ROS graph.
-    fn graph(&self) -> BoxFuture<'_, Result<Graph, RobotError>>;
-    /// Stop every node of `app` (remediation).
-    fn stop_app<'a>(&'a self, app: &'a str) -> BoxFuture<'a, Result<(), RobotError>>;
-    /// Start every node of `app` again.
-    fn start_app<'a>(&'a self, app: &'a str) -> BoxFuture<'a, Result<(), RobotError>>;
-    /// Freeze (SIGSTOP) every node of `app`.
-    fn freeze_app<'a>(&'a self, app: &'a str) -> BoxFuture<'a, Result<(), RobotError>>;
-    /// Thaw (SIGCONT) every node of `app`.
-    fn thaw_app<'a>(&'a self, app: &'a str) -> BoxFuture<'a, Result<(), RobotError>>;
-    /// Start a rosbag recording of `topics` named `name`: the bag's path,
-    /// `None` when the robot cannot record (no rosbag) or `topics` is empty.
-    fn start_recording<'a>(
-        &'a self,
-        name: &'a str,
-        topics: &'a [String],
-    ) -> BoxFuture<'a, Result<Option<String>, RobotError>>;
-    /// Stop the recording `name`: the finished bag's path, if one was running.
-    fn stop_recording<'a>(
-        &'a self,
-        name: &'a str,
-    ) -> BoxFuture<'a, Result<Option<String>, RobotError>>;
+pub trait Robot: NodeApi<Error = RobotError> {
     /// Runtime events from now on.
     fn events(&self) -> broadcast::Receiver<RobotEvent>;
-    /// Run `stack` (`None`: no stack, stop every node). Robots whose stack
-    /// is fixed (simulations) keep the default, which does nothing.
-    fn set_stack<'a>(
-        &'a self,
-        stack: Option<&'a configbot_manifests::RobotStack>,
-    ) -> BoxFuture<'a, Result<(), RobotError>> {
-        let _ = stack;
-        Box::pin(async { Ok(()) })
-    }
 }
 
 /// The time the tuning loop waits on (settling, monitor periods). Real robots

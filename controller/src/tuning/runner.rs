@@ -466,6 +466,7 @@ impl Runner {
                         .start_recording(&self.recording_name(), &topics)
                         .await?
                     {
+                        let path = path.display().to_string();
                         recording = Some(Recording { path, topics });
                     }
                 }
@@ -507,7 +508,8 @@ impl Runner {
     async fn resume(&self, remedy: &Remedy, apps: &[String]) -> Result<Option<String>, RobotError> {
         let robot = &self.ctx.robot;
         let bag = if remedy.record {
-            robot.stop_recording(&self.recording_name()).await?
+            let bag = robot.stop_recording(&self.recording_name()).await?;
+            bag.map(|p| p.display().to_string())
         } else {
             None
         };

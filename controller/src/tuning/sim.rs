@@ -12,18 +12,19 @@
 //! but does no work; recordings are only remembered (topics and name).
 
 use std::collections::{BTreeMap, BTreeSet};
+use std::path::PathBuf;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use configbot_api::graph::{Graph, NodeInfo, TopicInfo};
 use configbot_api::measure::{MeasureReport, MeasureRequest, Probe, ProbeSeries};
-use configbot_manifests::ResourceConfig;
+use configbot_manifests::{ResourceConfig, RobotStack};
 use tokio::sync::{Notify, broadcast};
 
 use configbot_tuning::monitor::RobotEvent;
 
-use super::robot::{BoxFuture, Clock, Robot, RobotError};
+use super::robot::{BoxFuture, Clock, NodeApi, Robot, RobotError};
 
 /// One input of a node: messages of `topic` cost `cost` CPU-seconds each.
 #[derive(Debug, Clone, PartialEq)]
@@ -414,7 +415,9 @@ impl Clock for SimRobot {
     }
 }
 
-impl Robot for SimRobot {
+impl NodeApi for SimRobot {
+    type Error = RobotError;
+
     fn apply<'a>(&'a self, cfg: &'a ResourceConfig) -> BoxFuture<'a, Result<(), RobotError>> {
         Box::pin(async move {
             if cfg.cpu.values().any(|v| !(v.is_finite() && *v > 0.0)) {
@@ -516,29 +519,44 @@ impl Robot for SimRobot {
         &'a self,
         name: &'a str,
         topics: &'a [String],
-    ) -> BoxFuture<'a, Result<Option<String>, RobotError>> {
+    ) -> BoxFuture<'a, Result<Option<PathBuf>, RobotError>> {
         Box::pin(async move {
             if topics.is_empty() {
                 return Ok(None);
             }
             self.lock().recording.insert(name.into(), topics.to_vec());
-            Ok(Some(format!("sim://{name}.bag")))
+            Ok(Some(bag(name)))
         })
     }
 
     fn stop_recording<'a>(
         &'a self,
         name: &'a str,
-    ) -> BoxFuture<'a, Result<Option<String>, RobotError>> {
+    ) -> BoxFuture<'a, Result<Option<PathBuf>, RobotError>> {
         Box::pin(async move {
             let was = self.lock().recording.remove(name);
-            Ok(was.map(|_| format!("sim://{name}.bag")))
+            Ok(was.map(|_| bag(name)))
         })
     }
 
+    /// The simulated stack is fixed: a stack change does nothing.
+    fn set_stack<'a>(
+        &'a self,
+        _stack: Option<&'a RobotStack>,
+    ) -> BoxFuture<'a, Result<(), RobotError>> {
+        Box::pin(async { Ok(()) })
+    }
+}
+
+impl Robot for SimRobot {
     fn events(&self) -> broadcast::Receiver<RobotEvent> {
         self.events.subscribe()
     }
+}
+
+/// The path the simulated robot gives the recording `name`.
+fn bag(name: &str) -> PathBuf {
+    PathBuf::from(format!("sim://{name}.bag"))
 }
 
 fn topic_entry<'a>(g: &'a mut Graph, t: &str) -> &'a mut TopicInfo {

@@ -81,7 +81,7 @@ impl NodeRuntime {
     /// Applies a config: CPU limits of all nodes atomically (rolled back as a
     /// whole if one write fails), then adaptor rates per edge. Nodes and
     /// edges not listed are unlimited (edges keep a pass-through adaptor).
-    pub async fn apply(&self, cfg: &ResourceConfig) -> Result<()> {
+    pub(super) async fn apply_config(&self, cfg: &ResourceConfig) -> Result<()> {
         let _serial = self.inner.ops.lock().await;
         let stack_nodes = crate::state::stack_nodes(&self.agent().stack());
         let plan = plan(&stack_nodes, cfg)?;

@@ -117,7 +117,7 @@ impl NodeRuntime {
     /// subscriber (after its adaptor when the edge is adapted). CpuUsage:
     /// CPUs used by the node's cgroup. An unknown node is an error; a topic
     /// without messages (or publishers) measures 0 Hz.
-    pub async fn measure(&self, req: &MeasureRequest) -> Result<MeasureReport> {
+    pub(super) async fn measure_window(&self, req: &MeasureRequest) -> Result<MeasureReport> {
         let bounds = boundaries(req)?;
         let stack_nodes = crate::state::stack_nodes(&self.agent().stack());
         let mut counters = Vec::with_capacity(req.probes.len());

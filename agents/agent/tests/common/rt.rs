@@ -10,13 +10,12 @@ use std::process::{Child, Command, Stdio};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
-use configbot_agent::runtime::{NodeRuntime, RosOptions, RuntimeOptions};
+use configbot_agent::runtime::{DEFAULT_BACKEND, DataPlaneOptions, NodeRuntime, RuntimeOptions};
 use configbot_agent::{AgentSettings, StackSpec};
 use configbot_api::policy::PolicyConfig;
 use configbot_cgroups::CgroupBackend;
 use configbot_manifests::{Manifest, RobotStack};
 use configbot_procmon::Preference;
-use configbot_ros1::Ros1Config;
 
 use configbot_test_support::{free_port, require};
 
@@ -136,16 +135,15 @@ impl RtEnv {
         }
     }
 
-    pub fn ros_options(&self) -> RosOptions {
-        RosOptions {
-            config: Ros1Config {
-                master_uri: self.master_uri.clone(),
-                bind_host: "127.0.0.1".into(),
-                refresh_period: Duration::from_secs(5),
-                ..Ros1Config::default()
-            },
+    pub fn ros_options(&self) -> DataPlaneOptions {
+        DataPlaneOptions {
+            backend: DEFAULT_BACKEND.into(),
+            uri: self.master_uri.clone(),
+            bind_host: "127.0.0.1".into(),
+            adaptor_bind_host: configbot_ros1::DEFAULT_ADAPTOR_BIND.into(),
             db_path: self.path("ros1.db"),
             policy: PolicyConfig::default(),
+            refresh_period: Some(Duration::from_secs(5)),
         }
     }
 
@@ -168,7 +166,7 @@ impl RtEnv {
     ) -> NodeRuntime {
         let opts = RuntimeOptions {
             settings: self.settings(),
-            ros: ros.then(|| self.ros_options()),
+            data_plane: ros.then(|| self.ros_options()),
             monitor,
         };
         let rt = NodeRuntime::start(Box::new(v1_backend(&self.root)), opts, stack)

@@ -13,7 +13,7 @@ use serde::Serialize;
 use super::owner::Current;
 use super::{BenchArgs, MethodResult, Plan, example_for, start};
 use crate::cli::demo::{measure_defs, print_eval};
-use crate::tuning::robot::Robot;
+use crate::tuning::robot::NodeApi;
 use configbot_tuning::measure;
 
 /// One cell of the matrix: `from`'s best config measured on `on`.

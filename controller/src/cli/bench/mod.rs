@@ -33,7 +33,7 @@ use self::owner::Current;
 use super::demo::{
     PrivateRobot, example, histogram_chart, measure_defs, print_eval, print_trial, settled,
 };
-use crate::tuning::robot::Robot;
+use crate::tuning::robot::{NodeApi, Robot};
 use configbot_tuning::knobs::{self, KnobSpace};
 use configbot_tuning::measure::{self, Evaluation, MetricDef};
 use configbot_tuning::startup::flowing;

@@ -21,7 +21,7 @@ use crate::cli::bench::{self, BenchArgs, Plan, example_for, follow, outcome, sta
 use crate::cli::demo::{PrivateRobot, measure_defs};
 use crate::robot::EmbeddedRobot;
 use crate::store::Store;
-use crate::tuning::robot::Robot;
+use crate::tuning::robot::NodeApi;
 use configbot_tuning::measure::{self, MetricDef};
 
 /// Status and event poll interval of [`watch`].
