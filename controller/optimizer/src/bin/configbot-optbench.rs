@@ -143,7 +143,7 @@ fn run(p: &TestProblem, method: Method, seed: u64, budget: usize, safe: bool) ->
         }
         Method::Sobol => {
             let mut rng = Rng::seed_from_u64(seed);
-            let mut s = Sobol::scrambled(dim, &mut rng);
+            let s = Sobol::scrambled(dim, &mut rng);
             for i in 0..budget {
                 let x = if i == 0 {
                     p.current.clone()
@@ -407,7 +407,7 @@ fn proposal_time(seeds: u64, asks: usize, clock: Clock) -> Result<ProposalTime> 
         };
         let mut opt = Optimizer::new(problem.clone(), settings, &vec![0.5; dim])?;
         let mut rng = Rng::seed_from_u64(seed);
-        let mut s = Sobol::scrambled(dim, &mut rng);
+        let s = Sobol::scrambled(dim, &mut rng);
         for i in 0..99 {
             opt.tell(timing_eval(&s.point(i)))?;
         }
