@@ -1,57 +1,74 @@
-//! Space-filling designs: an Owen-scrambled Sobol sequence.
+//! Space-filling designs: a digitally shifted (scrambled) Sobol sequence.
 //!
-//! The points come from `sobol_burley` (Joe–Kuo direction numbers for 256
-//! dimensions, Burley's hash-based Owen scrambling, 2^16 points, 23-bit
-//! coordinates). A seed drawn from the caller's generator picks the scramble.
-//! Beyond those limits the sequence continues with further seeds: dimension
-//! `d` is dimension `d mod 256` of the sequence for block `d / 256`, and point
-//! `i` is point `i mod 2^16` of the sequence for block `i / 2^16`, so each
-//! block of dimensions is an independently scrambled Sobol set (Burley's
-//! padding) and no input panics. Points are computed from their index, so the
-//! only state is the dimension and the seed.
+//! The Sobol points come from `sobol_burley`'s table (Joe and Kuo's published
+//! direction numbers for 256 dimensions, 2^16 points), taken in Gray-code
+//! order; a random XOR shift per dimension (from the caller's seed) scrambles
+//! them while keeping their stratification. Past the table — dimension 256 and
+//! beyond, or point 2^16 and beyond — the sequence continues with Burley's
+//! padding: for each block of 256 dimensions and of 2^16 points, an
+//! independently Owen-scrambled Sobol sequence from the same crate. Points are
+//! computed from their index, so the only state a caller needs is the index
+//! and the shift.
 
+use serde::{Deserialize, Serialize};
 use sobol_burley::NUM_DIMENSIONS;
+use sobol_burley::parts::sobol_rev;
 
 use crate::rng::Rng;
 
-/// Points per scrambled sequence (`sobol_burley`'s limit).
+/// Points in the table (`sobol_burley`'s limit).
 const POINTS: u64 = 1 << 16;
 
 /// A scrambled Sobol sequence over `(0, 1)^dim`.
-#[derive(Debug, Clone, PartialEq, Eq)]
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
 pub struct Sobol {
-    dim: usize,
-    seed: u32,
+    shift: Vec<u32>,
 }
 
 impl Sobol {
-    /// Scrambled by a seed drawn from `rng`.
-    pub fn scrambled(dim: usize, rng: &mut Rng) -> Self {
+    /// Unscrambled sequence (point 0 is the origin's cell).
+    pub fn new(dim: usize) -> Self {
         Self {
-            dim,
-            seed: (rng.next_u64() >> 32) as u32,
+            shift: vec![0; dim],
         }
     }
 
+    /// Digitally shifted by random bits from `rng`.
+    pub fn scrambled(dim: usize, rng: &mut Rng) -> Self {
+        let shift = (0..dim).map(|_| (rng.next_u64() >> 32) as u32).collect();
+        Self { shift }
+    }
+
     pub fn dim(&self) -> usize {
-        self.dim
+        self.shift.len()
     }
 
     /// The point with the given index.
     pub fn point(&self, index: u64) -> Vec<f64> {
-        let dims = NUM_DIMENSIONS as usize;
-        let sample = (index % POINTS) as u32;
-        (0..self.dim)
-            .map(|d| {
-                // A different seed for every block of points and of dimensions.
-                let block =
-                    (index / POINTS).wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ (d / dims) as u64;
-                let seed = self.seed ^ (block as u32) ^ ((block >> 32) as u32);
-                let v = sobol_burley::sample(sample, (d % dims) as u32, seed);
-                // Centre of the 2^-23 cell so no coordinate is exactly 0.
-                f64::from(v) + 0.5 / f64::from(1u32 << 23)
+        let gray = index ^ (index >> 1);
+        self.shift
+            .iter()
+            .enumerate()
+            .map(|(d, &shift)| match u32::try_from(d) {
+                Ok(dim) if index < POINTS && dim < NUM_DIMENSIONS => {
+                    let x = sobol_rev((gray as u32).reverse_bits(), dim).reverse_bits() ^ shift;
+                    // Centre of the 2^-32 cell so no coordinate is exactly 0.
+                    (f64::from(x) + 0.5) / 4_294_967_296.0
+                }
+                _ => self.padding(index, d),
             })
             .collect()
+    }
+
+    /// Coordinate `d` of point `index` outside the table: Owen-scrambled Sobol
+    /// with one seed per block of 2^16 points and of 256 dimensions.
+    fn padding(&self, index: u64, d: usize) -> f64 {
+        let dims = NUM_DIMENSIONS as usize;
+        let mut block = Rng::seed_from_u64((index / POINTS) ^ (((d / dims) as u64) << 32));
+        let seed = self.shift[d - d % dims] ^ (block.next_u64() >> 32) as u32;
+        let v = sobol_burley::sample((index % POINTS) as u32, (d % dims) as u32, seed);
+        // Centre of the 2^-23 cell.
+        f64::from(v) + 0.5 / f64::from(1u32 << 23)
     }
 
     /// Points `start..start + n`.
@@ -67,7 +84,7 @@ mod tests {
     #[test]
     fn every_dimension_is_stratified() {
         // The first 2^k points of each 1-D projection hit each dyadic interval once,
-        // scrambled or not, also for generated dimensions beyond the table.
+        // scrambled or not.
         let mut rng = Rng::seed_from_u64(3);
         let s = Sobol::scrambled(20, &mut rng);
         let pts = s.points(0, 64);
@@ -93,7 +110,7 @@ mod tests {
 
     #[test]
     fn past_the_crates_limits_the_points_stay_stratified() {
-        // Dimensions past 256 and indices past 2^16 come from further scrambled
+        // Dimensions past 256 and indices past 2^16 come from the padding
         // sequences: each 1-D projection of a dyadic block is still stratified.
         let s = Sobol::scrambled(300, &mut Rng::seed_from_u64(9));
         for start in [0, POINTS] {
@@ -113,6 +130,25 @@ mod tests {
             assert!(pts.iter().any(|p| p[0] != p[256]));
         }
         assert_ne!(s.point(0), s.point(POINTS));
+    }
+
+    #[test]
+    fn first_points_match_the_reference_sequence() {
+        // Unscrambled Sobol, dimensions 1-3 (Joe & Kuo's reference output).
+        let want = [
+            [0.5, 0.5, 0.5],
+            [0.75, 0.25, 0.25],
+            [0.25, 0.75, 0.75],
+            [0.375, 0.375, 0.625],
+            [0.875, 0.875, 0.125],
+        ];
+        let s = Sobol::new(3);
+        for (i, w) in want.iter().enumerate() {
+            let p = s.point(i as u64 + 1);
+            for (a, b) in p.iter().zip(w) {
+                assert!((a - b).abs() < 1e-9, "point {}: {p:?} vs {w:?}", i + 1);
+            }
+        }
     }
 
     #[test]
