@@ -1,169 +1,42 @@
 //! Space-filling designs: a digitally shifted (scrambled) Sobol sequence.
 //!
-//! Sobol points come from direction numbers built from primitive polynomials
-//! over GF(2). The first 16 dimensions use the published Joe–Kuo initial
-//! numbers (dimension 1 is van der Corput); beyond that, primitive polynomials
-//! are found by enumeration and the odd initial numbers are drawn from a fixed
-//! internal seed, which still gives a valid digital sequence. A random XOR
-//! shift per dimension (from the caller's seed) scrambles the sequence while
-//! keeping its stratification. Points are computed from their index directly,
-//! so the only state a caller needs is the index and the shift.
+//! The Sobol points come from `sobol_burley`'s table (Joe and Kuo's published
+//! direction numbers for 256 dimensions, 2^16 points), taken in Gray-code
+//! order; a random XOR shift per dimension (from the caller's seed) scrambles
+//! them while keeping their stratification. Past the table — dimension 256 and
+//! beyond, or point 2^16 and beyond — the sequence continues with Burley's
+//! padding: for each block of 256 dimensions and of 2^16 points, an
+//! independently Owen-scrambled Sobol sequence from the same crate. Points are
+//! computed from their index, so the only state a caller needs is the index
+//! and the shift.
 
 use serde::{Deserialize, Serialize};
+use sobol_burley::NUM_DIMENSIONS;
+use sobol_burley::parts::sobol_rev;
 
 use crate::rng::Rng;
 
-const BITS: usize = 32;
+/// Points in the table (`sobol_burley`'s limit).
+const POINTS: u64 = 1 << 16;
 
-/// (degree s, coefficient bits a, initial numbers m_1..m_s) for dimensions 2..=16.
-const JOE_KUO: [(u32, u32, &[u32]); 15] = [
-    (1, 0, &[1]),
-    (2, 1, &[1, 3]),
-    (3, 1, &[1, 3, 1]),
-    (3, 2, &[1, 1, 1]),
-    (4, 1, &[1, 1, 3, 3]),
-    (4, 4, &[1, 3, 5, 13]),
-    (5, 2, &[1, 1, 5, 5, 17]),
-    (5, 4, &[1, 1, 5, 5, 5]),
-    (5, 7, &[1, 1, 7, 11, 19]),
-    (5, 11, &[1, 1, 5, 1, 1]),
-    (5, 13, &[1, 1, 1, 3, 11]),
-    (5, 14, &[1, 3, 5, 5, 31]),
-    (6, 1, &[1, 3, 3, 9, 7, 49]),
-    (6, 13, &[1, 1, 1, 15, 21, 21]),
-    (6, 16, &[1, 3, 1, 13, 27, 49]),
-];
-
-/// Is `x^s + a_1 x^{s-1} + ... + a_{s-1} x + 1` (bits of `a`, MSB = a_1) primitive over GF(2)?
-pub fn is_primitive(s: u32, a: u32) -> bool {
-    // Polynomial as a bit mask with bit i = coefficient of x^i.
-    let mut poly: u64 = (1 << s) | 1;
-    for j in 1..s {
-        if (a >> (s - 1 - j)) & 1 == 1 {
-            poly |= 1 << (s - j);
-        }
-    }
-    let order = (1u64 << s) - 1;
-    // x^order must be 1, and x^(order/q) must not be 1 for each prime q | order.
-    let mulmod = |a: u64, b: u64| -> u64 {
-        let mut r = 0u64;
-        let mut a = a;
-        let mut b = b;
-        while b != 0 {
-            if b & 1 == 1 {
-                r ^= a;
-            }
-            b >>= 1;
-            a <<= 1;
-            if a & (1 << s) != 0 {
-                a ^= poly;
-            }
-        }
-        r
-    };
-    let powmod = |e: u64| -> u64 {
-        // x reduced modulo the polynomial (x ≡ 1 mod x + 1).
-        let (mut r, mut base, mut e) = (1u64, if s == 1 { 1u64 } else { 2u64 }, e);
-        while e > 0 {
-            if e & 1 == 1 {
-                r = mulmod(r, base);
-            }
-            base = mulmod(base, base);
-            e >>= 1;
-        }
-        r
-    };
-    if powmod(order) != 1 {
-        return false;
-    }
-    let mut primes = Vec::new();
-    let (mut n, mut q) = (order, 2u64);
-    while q * q <= n {
-        if n % q == 0 {
-            primes.push(q);
-            while n % q == 0 {
-                n /= q;
-            }
-        }
-        q += 1;
-    }
-    if n > 1 {
-        primes.push(n);
-    }
-    primes.iter().all(|&q| powmod(order / q) != 1)
-}
-
-fn direction_numbers(s: u32, a: u32, m: &[u32]) -> [u32; BITS] {
-    let s = s as usize;
-    let mut v = [0u32; BITS];
-    for i in 0..BITS {
-        if i < s {
-            v[i] = m[i] << (BITS - 1 - i);
-        } else {
-            let mut x = v[i - s] ^ (v[i - s] >> s);
-            for k in 1..s {
-                if (a >> (s - 1 - k)) & 1 == 1 {
-                    x ^= v[i - k];
-                }
-            }
-            v[i] = x;
-        }
-    }
-    v
-}
-
-/// Direction numbers for `dim` dimensions.
-fn all_direction_numbers(dim: usize) -> Vec<[u32; BITS]> {
-    let mut out = Vec::with_capacity(dim);
-    // Dimension 1: van der Corput.
-    out.push(std::array::from_fn(|i| 1u32 << (BITS - 1 - i)));
-    for &(s, a, m) in JOE_KUO.iter().take(dim.saturating_sub(1)) {
-        out.push(direction_numbers(s, a, m));
-    }
-    // Beyond the table: enumerate further primitive polynomials of degree >= 7.
-    let mut rng = Rng::seed_from_u64(0x5EED_50B0);
-    let (mut s, mut a) = (7u32, 0u32);
-    while out.len() < dim {
-        if a >= (1 << (s - 1)) {
-            s += 1;
-            a = 0;
-        }
-        if is_primitive(s, a) {
-            // Odd m_j < 2^j, as the construction requires.
-            let m: Vec<u32> = (0..s)
-                .map(|j| 2 * ((rng.next_u64() as u32) % (1u32 << j)) + 1)
-                .collect();
-            out.push(direction_numbers(s, a, &m));
-        }
-        a += 1;
-    }
-    out
-}
-
-/// A scrambled Sobol sequence over `[0, 1)^dim`.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+/// A scrambled Sobol sequence over `(0, 1)^dim`.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
 pub struct Sobol {
     shift: Vec<u32>,
-    #[serde(skip)]
-    dirs: Vec<[u32; BITS]>,
 }
 
 impl Sobol {
-    /// Unscrambled sequence (point 0 is the origin).
+    /// Unscrambled sequence (point 0 is the origin's cell).
     pub fn new(dim: usize) -> Self {
         Self {
             shift: vec![0; dim],
-            dirs: all_direction_numbers(dim),
         }
     }
 
     /// Digitally shifted by random bits from `rng`.
     pub fn scrambled(dim: usize, rng: &mut Rng) -> Self {
         let shift = (0..dim).map(|_| (rng.next_u64() >> 32) as u32).collect();
-        Self {
-            shift,
-            dirs: all_direction_numbers(dim),
-        }
+        Self { shift }
     }
 
     pub fn dim(&self) -> usize {
@@ -171,29 +44,35 @@ impl Sobol {
     }
 
     /// The point with the given index.
-    pub fn point(&mut self, index: u64) -> Vec<f64> {
-        if self.dirs.len() != self.shift.len() {
-            self.dirs = all_direction_numbers(self.shift.len());
-        }
+    pub fn point(&self, index: u64) -> Vec<f64> {
         let gray = index ^ (index >> 1);
-        self.dirs
+        self.shift
             .iter()
-            .zip(&self.shift)
-            .map(|(v, &shift)| {
-                let mut x = shift;
-                for (bit, &vb) in v.iter().enumerate() {
-                    if (gray >> bit) & 1 == 1 {
-                        x ^= vb;
-                    }
+            .enumerate()
+            .map(|(d, &shift)| match u32::try_from(d) {
+                Ok(dim) if index < POINTS && dim < NUM_DIMENSIONS => {
+                    let x = sobol_rev((gray as u32).reverse_bits(), dim).reverse_bits() ^ shift;
+                    // Centre of the 2^-32 cell so no coordinate is exactly 0.
+                    (f64::from(x) + 0.5) / 4_294_967_296.0
                 }
-                // Centre of the 2^-32 cell so no coordinate is exactly 0.
-                (f64::from(x) + 0.5) / 4_294_967_296.0
+                _ => self.padding(index, d),
             })
             .collect()
     }
 
+    /// Coordinate `d` of point `index` outside the table: Owen-scrambled Sobol
+    /// with one seed per block of 2^16 points and of 256 dimensions.
+    fn padding(&self, index: u64, d: usize) -> f64 {
+        let dims = NUM_DIMENSIONS as usize;
+        let mut block = Rng::seed_from_u64((index / POINTS) ^ (((d / dims) as u64) << 32));
+        let seed = self.shift[d - d % dims] ^ (block.next_u64() >> 32) as u32;
+        let v = sobol_burley::sample((index % POINTS) as u32, (d % dims) as u32, seed);
+        // Centre of the 2^-23 cell.
+        f64::from(v) + 0.5 / f64::from(1u32 << 23)
+    }
+
     /// Points `start..start + n`.
-    pub fn points(&mut self, start: u64, n: usize) -> Vec<Vec<f64>> {
+    pub fn points(&self, start: u64, n: usize) -> Vec<Vec<f64>> {
         (0..n as u64).map(|i| self.point(start + i)).collect()
     }
 }
@@ -203,29 +82,11 @@ mod tests {
     use super::*;
 
     #[test]
-    fn table_polynomials_are_primitive() {
-        for &(s, a, m) in &JOE_KUO {
-            assert!(is_primitive(s, a), "degree {s} a {a}");
-            assert_eq!(m.len(), s as usize);
-            for (i, &mi) in m.iter().enumerate() {
-                assert!(
-                    mi % 2 == 1 && mi < (1 << (i + 1)),
-                    "m_{} = {mi} for degree {s} a {a}",
-                    i + 1
-                );
-            }
-        }
-        // x^2 + 1 = (x + 1)^2 is not primitive, x^4 + x^2 + 1 neither (reducible).
-        assert!(!is_primitive(2, 0));
-        assert!(!is_primitive(4, 2));
-    }
-
-    #[test]
     fn every_dimension_is_stratified() {
         // The first 2^k points of each 1-D projection hit each dyadic interval once,
-        // scrambled or not, also for generated dimensions beyond the table.
+        // scrambled or not.
         let mut rng = Rng::seed_from_u64(3);
-        let mut s = Sobol::scrambled(20, &mut rng);
+        let s = Sobol::scrambled(20, &mut rng);
         let pts = s.points(0, 64);
         for d in 0..20 {
             let mut seen = [false; 64];
@@ -238,6 +99,40 @@ mod tests {
     }
 
     #[test]
+    fn same_seed_same_points_other_seed_other_points() {
+        let a = Sobol::scrambled(5, &mut Rng::seed_from_u64(1)).points(0, 8);
+        let b = Sobol::scrambled(5, &mut Rng::seed_from_u64(1)).points(0, 8);
+        let c = Sobol::scrambled(5, &mut Rng::seed_from_u64(2)).points(0, 8);
+        assert_eq!(a, b);
+        assert_ne!(a, c);
+        assert!(a.iter().flatten().all(|&v| v > 0.0 && v < 1.0));
+    }
+
+    #[test]
+    fn past_the_crates_limits_the_points_stay_stratified() {
+        // Dimensions past 256 and indices past 2^16 come from the padding
+        // sequences: each 1-D projection of a dyadic block is still stratified.
+        let s = Sobol::scrambled(300, &mut Rng::seed_from_u64(9));
+        for start in [0, POINTS] {
+            let pts = s.points(start, 32);
+            for d in [0, 255, 256, 299] {
+                let mut seen = [false; 32];
+                for p in &pts {
+                    let cell = (p[d] * 32.0) as usize;
+                    assert!(
+                        !seen[cell],
+                        "start {start} dimension {d} cell {cell} hit twice"
+                    );
+                    seen[cell] = true;
+                }
+            }
+            // Dimension 256 is not a copy of dimension 0.
+            assert!(pts.iter().any(|p| p[0] != p[256]));
+        }
+        assert_ne!(s.point(0), s.point(POINTS));
+    }
+
+    #[test]
     fn first_points_match_the_reference_sequence() {
         // Unscrambled Sobol, dimensions 1-3 (Joe & Kuo's reference output).
         let want = [
@@ -247,7 +142,7 @@ mod tests {
             [0.375, 0.375, 0.625],
             [0.875, 0.875, 0.125],
         ];
-        let mut s = Sobol::new(3);
+        let s = Sobol::new(3);
         for (i, w) in want.iter().enumerate() {
             let p = s.point(i as u64 + 1);
             for (a, b) in p.iter().zip(w) {
@@ -262,7 +157,7 @@ mod tests {
         // an empty cell in ~70 % of pairs; Sobol pairs almost never do (2 of the 45
         // pairs of the first 10 dimensions have a checkerboard at this resolution,
         // a known property of some Sobol projections).
-        let mut s = Sobol::scrambled(10, &mut Rng::seed_from_u64(5));
+        let s = Sobol::scrambled(10, &mut Rng::seed_from_u64(5));
         let pts = s.points(0, 256);
         let mut with_empty = 0;
         for a in 0..10 {

@@ -250,7 +250,7 @@ impl Optimizer {
         let fill = settings
             .initial_design_size
             .saturating_sub(design.len() + prior.len() / 2);
-        let mut sobol = Sobol::scrambled(dim, &mut rng);
+        let sobol = Sobol::scrambled(dim, &mut rng);
         let half = settings.trust_initial;
         for p in sobol.points(0, fill) {
             let u: Vec<f64> = match settings.safety {

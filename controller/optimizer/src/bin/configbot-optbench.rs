@@ -7,6 +7,13 @@
 //!   and writes `optbench.json` (best-feasible-so-far per evaluation).
 //!   `--quick` shrinks seeds and budgets for CI; `--out PATH` moves the JSON;
 //!   `--skip-compare` runs only the timing, UNSAT and safety parts.
+//! - `--timing [--reps R] [--out PATH]`: the numerics' speed alone — a full
+//!   GP fit (hyperparameters by multi-start L-BFGS) at 30 and 100 observations
+//!   in 10 dimensions (and its held-out error, so a faster fit that fits worse
+//!   shows), the mean proposal time at 100 observations, and the normal CDF
+//!   (erfc) per call; times are this thread's CPU time (not wall clock), each
+//!   the median of R repetitions; prints a table and writes
+//!   `optbench-timing.json`.
 //! - `--problem P --seed S --budget N [--method bo|random|sobol] [--safe] --json`:
 //!   one run, printing its trace as JSON (for other tools).
 //! - `--search-best P [--samples N] [--bo-runs K]`: large random search (plus
@@ -16,10 +23,15 @@
 use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
+use configbot_optimizer::acquisition::norm_cdf;
 use configbot_optimizer::design::Sobol;
+use configbot_optimizer::gp::{FitOptions, Gp};
 use configbot_optimizer::problems::{self, TestProblem};
 use configbot_optimizer::rng::Rng;
-use configbot_optimizer::{Optimizer, Outcome, Proposal, SafetyFloor, Settings};
+use configbot_optimizer::{
+    Constraint, Goal, Knob, Objective, Observation, Optimizer, Outcome, Problem, Proposal,
+    SafetyFloor, Scalarization, Settings, Space,
+};
 use serde::Serialize;
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
@@ -131,7 +143,7 @@ fn run(p: &TestProblem, method: Method, seed: u64, budget: usize, safe: bool) ->
         }
         Method::Sobol => {
             let mut rng = Rng::seed_from_u64(seed);
-            let mut s = Sobol::scrambled(dim, &mut rng);
+            let s = Sobol::scrambled(dim, &mut rng);
             for i in 0..budget {
                 let x = if i == 0 {
                     p.current.clone()
@@ -253,6 +265,9 @@ fn main() -> Result<()> {
         }
         return Ok(());
     }
+    if args.iter().any(|a| a == "--timing") {
+        return timing(&args);
+    }
     full(&args)
 }
 
@@ -311,40 +326,78 @@ struct ProposalTime {
     dims: usize,
     observations: String,
     samples: usize,
+    mean_ms: f64,
     p50_ms: f64,
     p99_ms: f64,
     max_ms: f64,
 }
 
-/// Proposal time with ~100 observations in 10 dimensions (asks at n = 100..120).
-fn proposal_time(seeds: u64, asks: usize) -> Result<ProposalTime> {
-    use configbot_optimizer::{
-        Constraint, Goal, Knob, Objective, Observation, Problem, Scalarization, Space,
-    };
-    let dim = 10;
-    let knobs = (0..dim)
+const TIMING_DIMS: usize = 10;
+
+/// What the timings count: wall-clock time (the full run, as a user waits), or
+/// this thread's CPU time (`--timing`), which a loaded machine inflates far
+/// less: waiting for a core is not counted.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Clock {
+    Wall,
+    Cpu,
+}
+
+impl Clock {
+    /// Milliseconds since some fixed origin.
+    fn now_ms(self) -> Result<f64> {
+        static ORIGIN: std::sync::OnceLock<Instant> = std::sync::OnceLock::new();
+        match self {
+            Clock::Wall => Ok(ORIGIN.get_or_init(Instant::now).elapsed().as_secs_f64() * 1e3),
+            Clock::Cpu => {
+                // The first field is the time spent on a CPU, in nanoseconds.
+                let path = "/proc/thread-self/schedstat";
+                let text =
+                    std::fs::read_to_string(path).with_context(|| format!("reading {path}"))?;
+                let ns: f64 = text
+                    .split_whitespace()
+                    .next()
+                    .and_then(|f| f.parse().ok())
+                    .with_context(|| format!("no CPU time in {path}: {text:?}"))?;
+                Ok(ns * 1e-6)
+            }
+        }
+    }
+}
+
+/// The 10-knob problem the timings use: a smooth objective with some ripple
+/// and one linear constraint.
+fn timing_problem() -> Result<Problem> {
+    let knobs = (0..TIMING_DIMS)
         .map(|i| Knob::linear(&format!("k{i}"), 0.0, 1.0))
         .collect();
-    let problem = Problem::new(
+    Ok(Problem::new(
         Space::new(knobs)?,
         vec![Objective::raw("f", Goal::Maximize)],
         vec![Constraint::at_most("load", 6.0)],
         Scalarization::MaxMin,
-    )?;
-    let eval = |x: &[f64]| -> Observation {
-        let f = -x
-            .iter()
-            .enumerate()
-            .map(|(i, v)| (v - 0.3 - 0.04 * i as f64).powi(2))
-            .sum::<f64>()
-            + 0.1 * (7.0 * x[0]).sin() * (5.0 * x[3]).cos();
-        Observation {
-            x: x.to_vec(),
-            objectives: vec![f],
-            constraints: vec![x.iter().sum()],
-            censored: false,
-        }
-    };
+    )?)
+}
+
+fn timing_eval(x: &[f64]) -> Observation {
+    let f = -x
+        .iter()
+        .enumerate()
+        .map(|(i, v)| (v - 0.3 - 0.04 * i as f64).powi(2))
+        .sum::<f64>()
+        + 0.1 * (7.0 * x[0]).sin() * (5.0 * x[3]).cos();
+    Observation {
+        x: x.to_vec(),
+        objectives: vec![f],
+        constraints: vec![x.iter().sum()],
+        censored: false,
+    }
+}
+
+/// Proposal time with ~100 observations in 10 dimensions (asks at n = 100..120).
+fn proposal_time(seeds: u64, asks: usize, clock: Clock) -> Result<ProposalTime> {
+    let dim = TIMING_DIMS;
+    let problem = timing_problem()?;
     let mut times = Vec::new();
     for seed in 0..seeds {
         let settings = Settings {
@@ -354,18 +407,18 @@ fn proposal_time(seeds: u64, asks: usize) -> Result<ProposalTime> {
         };
         let mut opt = Optimizer::new(problem.clone(), settings, &vec![0.5; dim])?;
         let mut rng = Rng::seed_from_u64(seed);
-        let mut s = Sobol::scrambled(dim, &mut rng);
+        let s = Sobol::scrambled(dim, &mut rng);
         for i in 0..99 {
-            opt.tell(eval(&s.point(i)))?;
+            opt.tell(timing_eval(&s.point(i)))?;
         }
         opt.ask()?; // fits the hyperparameters once, as the previous step of a run would have
-        opt.tell(eval(&s.point(99)))?;
+        opt.tell(timing_eval(&s.point(99)))?;
         for _ in 0..asks {
-            let t = Instant::now();
+            let t = clock.now_ms()?;
             let p = opt.ask()?;
-            times.push(t.elapsed().as_secs_f64() * 1e3);
+            times.push(clock.now_ms()? - t);
             match p {
-                Proposal::Try(x) => opt.tell(eval(&x))?,
+                Proposal::Try(x) => opt.tell(timing_eval(&x))?,
                 Proposal::Stop(_) => break,
             }
         }
@@ -374,10 +427,121 @@ fn proposal_time(seeds: u64, asks: usize) -> Result<ProposalTime> {
         dims: dim,
         observations: format!("100..{}", 100 + asks),
         samples: times.len(),
+        mean_ms: times.iter().sum::<f64>() / times.len().max(1) as f64,
         p50_ms: percentile(times.clone(), 0.5),
         p99_ms: percentile(times.clone(), 0.99),
         max_ms: percentile(times, 1.0),
     })
+}
+
+/// Full GP fits (fresh hyperparameters, default [`FitOptions`]) on `n`
+/// Sobol points of the timing problem, one per seed in `0..fits`: the mean
+/// CPU time per fit (ms; timed as one batch, as the CPU clock ticks coarsely)
+/// and the median root-mean-square error of the fitted mean on 200 random
+/// held-out points (the fits' quality, deterministic).
+fn gp_fit(n: usize, fits: u64) -> Result<(f64, f64)> {
+    let data: Vec<(Vec<Vec<f64>>, Vec<f64>, Rng)> = (0..fits)
+        .map(|seed| {
+            let mut rng = Rng::seed_from_u64(seed);
+            let x = Sobol::scrambled(TIMING_DIMS, &mut rng).points(0, n);
+            let y = x.iter().map(|u| timing_eval(u).objectives[0]).collect();
+            (x, y, rng)
+        })
+        .collect();
+    let t = Clock::Cpu.now_ms()?;
+    let gps = data
+        .iter()
+        .map(|(x, y, rng)| Gp::fit(x, y, &FitOptions::default(), None, &mut rng.clone()))
+        .collect::<configbot_optimizer::Result<Vec<Gp>>>()?;
+    let per_fit = (Clock::Cpu.now_ms()? - t) / fits as f64;
+    let errors = gps
+        .iter()
+        .zip(data)
+        .map(|(gp, (_, _, mut rng))| {
+            let held_out: Vec<Vec<f64>> = (0..200)
+                .map(|_| (0..TIMING_DIMS).map(|_| rng.uniform()).collect())
+                .collect();
+            let sq: f64 = gp
+                .predict_many(&held_out)
+                .iter()
+                .zip(&held_out)
+                .map(|((m, _), u)| (m - timing_eval(u).objectives[0]).powi(2))
+                .sum();
+            (sq / held_out.len() as f64).sqrt()
+        })
+        .collect();
+    Ok((per_fit, median(errors)))
+}
+
+/// Nanoseconds per call of the normal CDF (the erfc behind every probability
+/// of feasibility and EI), over arguments spread across its range.
+fn norm_cdf_ns(calls: usize) -> Result<f64> {
+    let t = Clock::Cpu.now_ms()?;
+    let mut sum = 0.0;
+    for i in 0..calls {
+        sum += norm_cdf(std::hint::black_box(-12.0 + 16.0 * i as f64 / calls as f64));
+    }
+    std::hint::black_box(sum);
+    Ok((Clock::Cpu.now_ms()? - t) * 1e6 / calls as f64)
+}
+
+#[derive(Serialize)]
+struct Timing {
+    reps: usize,
+    dims: usize,
+    /// Per metric: the median over the repetitions, then every repetition.
+    gp_fit_n30_ms: (f64, Vec<f64>),
+    gp_fit_n100_ms: (f64, Vec<f64>),
+    /// Held-out RMSE of the fits (identical in every repetition).
+    gp_fit_n30_rmse: f64,
+    gp_fit_n100_rmse: f64,
+    proposal_mean_ms: (f64, Vec<f64>),
+    norm_cdf_ns: (f64, Vec<f64>),
+}
+
+fn timing(args: &[String]) -> Result<()> {
+    let reps = arg(args, "--reps").map_or(Ok(5), |s| s.parse())?;
+    let out = arg(args, "--out").unwrap_or_else(|| "optbench-timing.json".into());
+    let mut cols: [Vec<f64>; 4] = Default::default();
+    let (mut rmse30, mut rmse100) = (f64::NAN, f64::NAN);
+    for _ in 0..reps {
+        let (t, e) = gp_fit(30, 200)?;
+        cols[0].push(t);
+        rmse30 = e;
+        let (t, e) = gp_fit(100, 20)?;
+        cols[1].push(t);
+        rmse100 = e;
+        cols[2].push(proposal_time(2, 5, Clock::Cpu)?.mean_ms);
+        cols[3].push(norm_cdf_ns(2_000_000)?);
+    }
+    let [a, b, c, d] = cols.map(|v| (median(v.clone()), v));
+    println!(
+        "numerics timing (this thread's CPU time), {TIMING_DIMS} dims, median of {reps} repetitions"
+    );
+    for (name, (m, all)) in [
+        ("gp fit, 30 observations (ms per fit)", &a),
+        ("gp fit, 100 observations (ms per fit)", &b),
+        ("proposal, 100..105 observations (ms)", &c),
+        ("normal cdf per call (ns)", &d),
+    ] {
+        let all: Vec<String> = all.iter().map(|v| format!("{v:.2}")).collect();
+        println!("{name:<42} {m:>9.2}   [{}]", all.join(", "));
+    }
+    println!("gp fit held-out rmse, 30 / 100 observations  {rmse30:.6} / {rmse100:.6}");
+    let report = Timing {
+        reps,
+        dims: TIMING_DIMS,
+        gp_fit_n30_ms: a,
+        gp_fit_n100_ms: b,
+        gp_fit_n30_rmse: rmse30,
+        gp_fit_n100_rmse: rmse100,
+        proposal_mean_ms: c,
+        norm_cdf_ns: d,
+    };
+    std::fs::write(&out, serde_json::to_string_pretty(&report)?)
+        .with_context(|| format!("writing {out}"))?;
+    println!("wrote {out}");
+    Ok(())
 }
 
 fn full(args: &[String]) -> Result<()> {
@@ -452,7 +616,11 @@ fn full(args: &[String]) -> Result<()> {
         comparison.extend(bo.into_iter().chain(rnd).chain(sob));
     }
 
-    let pt = proposal_time(if quick { 2 } else { 10 }, if quick { 5 } else { 20 })?;
+    let pt = proposal_time(
+        if quick { 2 } else { 10 },
+        if quick { 5 } else { 20 },
+        Clock::Wall,
+    )?;
     println!(
         "\nproposal time (fit + acquisition), {} dims, {} observations: p50 {:.1} ms, p99 {:.1} ms, max {:.1} ms ({} samples)",
         pt.dims, pt.observations, pt.p50_ms, pt.p99_ms, pt.max_ms, pt.samples

@@ -241,7 +241,7 @@ pub fn oracle_points(space: &KnobSpace, n: usize, seed: u64) -> Vec<Vec<f64>> {
     }
     let opt_space = space.optimizer_space().ok();
     let mut rng = configbot_optimizer::rng::Rng::seed_from_u64(seed);
-    let mut sobol = configbot_optimizer::design::Sobol::scrambled(dim, &mut rng);
+    let sobol = configbot_optimizer::design::Sobol::scrambled(dim, &mut rng);
     for u in sobol.points(1, n - out.len()) {
         let x = match &opt_space {
             Some(s) => s.from_unit(&u),
