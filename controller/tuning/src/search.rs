@@ -299,6 +299,14 @@ pub(crate) fn record_trial(
     run.trials.push(rec);
 }
 
+/// Whether the run's restrictive-corner trial mostly held (at least
+/// [`measure::NEAR_SHARE`] of its windows): then it is no evidence of Unsat.
+fn corner_near_boundary(run: &Run) -> bool {
+    run.corner_trial
+        .and_then(|i| run.trials.get(i))
+        .is_some_and(|c| c.eval.satisfaction >= measure::NEAR_SHARE)
+}
+
 pub(crate) fn next_trial(
     run: &mut Run,
     env: &Env<'_>,
@@ -315,7 +323,7 @@ pub(crate) fn next_trial(
     if let Some(i) = last
         && run.corner_trial == Some(i)
         && !run.trials[i].feasible()
-        && run.trials[i].eval.satisfaction < measure::NEAR_SHARE
+        && !corner_near_boundary(run)
     {
         let (config, reason) = unsat_reason(run, defs);
         let reason = format!(
@@ -444,13 +452,12 @@ pub(crate) fn finish(
     // No trial's bound held, but the most restrictive config was near the
     // boundary: a longer verification decides before a verdict of Unsat.
     if let Some(index) = run.corner_trial
-        && let Some(corner) = run.trials.get(index)
-        && corner.eval.satisfaction >= measure::NEAR_SHARE
+        && corner_near_boundary(run)
         && !run.rejected.contains(&index)
     {
         let verify = State::VerifyApply {
             candidate: Candidate::Trial { index },
-            config: corner.config.clone(),
+            config: run.trials[index].config.clone(),
         };
         return drain_first(run, env, verify);
     }
