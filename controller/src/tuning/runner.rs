@@ -557,10 +557,17 @@ impl Runner {
             ),
             None => by.to_string(),
         };
+        let joined = ctx
+            .nodes
+            .iter()
+            .filter(|n| !old_nodes.contains(n))
+            .cloned()
+            .collect();
         Ok(Some(Trigger::ContextChanged {
             from,
             to: ctx.key(),
             by,
+            joined,
         }))
     }
 

@@ -512,6 +512,21 @@ pub fn starting(trigger: Trigger) -> State {
     }
 }
 
+/// The first state for a new context: the start-up wait when nodes joined
+/// (they may not publish yet), else straight to observing. When nodes only
+/// left, every node still running was up before, and a metric silent now is
+/// silent because of the config, not the start-up: waiting for it delayed the
+/// re-apply of a known context by a probe per missed message.
+fn new_context(t: Trigger) -> State {
+    match &t {
+        Trigger::ContextChanged { joined, .. } if joined.is_empty() => State::Observe {
+            trigger: t,
+            skip_library: false,
+        },
+        _ => starting(t),
+    }
+}
+
 /// The effect of the current state.
 pub fn effect(run: &Run, env: &Env<'_>) -> Effect {
     let defs = env.defs();
@@ -595,7 +610,7 @@ pub fn step(mut run: Run, input: Input, env: &Env<'_>) -> (Run, Vec<Output>) {
                     trigger: t,
                     skip_library: true,
                 },
-                Trigger::ContextChanged { .. } => starting(t),
+                Trigger::ContextChanged { .. } => new_context(t),
                 t => State::Observe {
                     trigger: t,
                     skip_library: false,
@@ -618,7 +633,7 @@ pub fn step(mut run: Run, input: Input, env: &Env<'_>) -> (Run, Vec<Output>) {
                 t.reason(),
                 format!("{}; the run starts over for the new context", t.message()),
             ));
-            starting(t)
+            new_context(t)
         }
         (
             State::StartUp {

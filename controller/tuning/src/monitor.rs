@@ -50,6 +50,11 @@ pub enum Trigger {
         from: String,
         to: String,
         by: String,
+        /// Nodes in the new context that the old one did not have. Empty
+        /// when nodes only left (or only the labels changed): nothing is
+        /// starting, so the run skips the start-up wait.
+        #[serde(default, skip_serializing_if = "Vec::is_empty")]
+        joined: Vec<String>,
     },
     /// A config from the library did not hold.
     #[serde(rename_all = "camelCase")]
@@ -80,7 +85,7 @@ impl Trigger {
                 "core constraints violated for {seconds:.0} s (satisfaction {:.1} %)",
                 satisfaction * 100.0
             ),
-            Trigger::ContextChanged { from, to, by } => {
+            Trigger::ContextChanged { from, to, by, .. } => {
                 format!("context changed ({by}): {from} -> {to}")
             }
             Trigger::LibraryConfigFailed { satisfaction } => format!(
