@@ -1,5 +1,6 @@
 //! The one retry backoff of the controller and the agent (reconcile requeues,
-//! the tuning runner's retries, the agent's restarts of crashed nodes):
+//! the tuning runner's retries, the agent's restarts of crashed nodes, the
+//! ROS 1 data plane's publisherUpdate retries and upstream reconnects):
 //! exponential from a base delay, capped, with optional ± jitter drawn from
 //! an injected [`Jitter`] source so tests can pin it. Pure: it computes
 //! durations; the caller sleeps.

@@ -9,7 +9,8 @@
 //! - [`policy`]: the adaptor placement rule the agent and the controller's
 //!   knob space both apply.
 //! - [`backoff`]: the one retry backoff (exponential, capped, optionally
-//!   jittered) of the reconciler, the tuning runner and the agent's restarts.
+//!   jittered) of the reconciler, the tuning runner, the agent's restarts and
+//!   the ROS 1 data plane's retries.
 
 pub mod backoff;
 pub mod graph;

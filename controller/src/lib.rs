@@ -1,15 +1,14 @@
 //! ConfigBot's control plane: the embedded store, the Kubernetes-style API
-//! server, the reconcilers, and the `configbot` CLI with its client.
+//! server, the reconcilers and the tuning runner. The `configbot` program
+//! (crate `configbot`, `cli/`) runs it; the tuning decisions are the pure
+//! `configbot-tuning` crate.
 //!
 //! Decisions (status planning, tables, selectors) are pure modules; IO lives in
-//! `store`, `api` and `client`.
+//! `store`, `api`, `robot` and the tuning runner.
 
 pub mod api;
-pub mod cli;
-pub mod client;
 pub mod metrics;
 pub mod reconcile;
-pub mod report;
 pub mod robot;
 pub mod server;
 pub mod store;

@@ -116,7 +116,7 @@ impl AgentRobot<AgentClient> {
                             _ = &mut stopped => return,
                             () = forward_until_closed(rx, tx.clone()) => {}
                         },
-                        Err(e) => eprintln!("configbot: agent events: {e}"),
+                        Err(e) => tracing::warn!(error = %e, "agent events (retrying in 1 s)"),
                     },
                 }
                 tokio::time::sleep(std::time::Duration::from_secs(1)).await;
@@ -271,11 +271,11 @@ pub async fn sync_stacks(store: Arc<Store>, robot: Arc<dyn Robot>) {
                             current = want;
                             first = false;
                         }
-                        Err(e) => eprintln!("configbot: setting the robot's stack: {e}"),
+                        Err(e) => tracing::warn!(error = %e, "setting the robot's stack"),
                     }
                 }
             }
-            Err(e) => eprintln!("configbot: listing stacks: {e}"),
+            Err(e) => tracing::warn!(error = %e, "listing stacks"),
         }
         // Wait for the next RobotStack change (status writes included: a
         // stack becomes eligible when it is accepted).

@@ -100,7 +100,7 @@ impl Server {
             let serve = api::serve_unix(r, &socket);
             let _ = ready_tx.send(());
             if let Err(e) = serve.await {
-                eprintln!("configbot: unix socket {}: {e}", socket.display());
+                tracing::error!(socket = %socket.display(), error = %e, "API listener stopped");
             }
         }));
         let _ = ready_rx.await;
@@ -113,7 +113,7 @@ impl Server {
             tls.ensure()?;
             tasks.push(tokio::spawn(async move {
                 if let Err(e) = api::serve_tcp(router, listener, token, &tls).await {
-                    eprintln!("configbot: tcp listener: {e}");
+                    tracing::error!(error = %e, "API TCP listener stopped");
                 }
             }));
         }

@@ -1,5 +1,6 @@
-//! API tests that drive the router directly (no port), plus the listeners'
-//! access rules and durability across `kill -9` on real processes.
+//! API tests that drive the router directly (no port). The listeners' access
+//! rules and durability across `kill -9` run the built program as a process:
+//! `cli/tests/processes.rs`.
 
 use std::sync::Arc;
 

@@ -13,100 +13,17 @@ use configbot_controller::metrics::Metrics;
 use configbot_controller::store::Store;
 use configbot_controller::tuning::robot::NodeApi;
 use configbot_controller::tuning::runner::{self, RunnerCtx};
-use configbot_controller::tuning::sim::{SimInput, SimNode, SimRobot};
+use configbot_controller::tuning::sim::SimRobot;
 use configbot_manifests::Kind;
-use configbot_test_support::{try_wait_until, try_wait_until_async, wait_until_async};
+use configbot_test_support::{try_wait_until_async, wait_until_async};
 use configbot_tuning::machine::{Remedy, State};
 use serde_json::{Value, json};
 
 /// How often the tests' condition waits look.
 const POLL: Duration = Duration::from_millis(20);
 
-fn node(
-    name: &str,
-    app: &str,
-    threads: f64,
-    timer: Option<f64>,
-    cycle: f64,
-    inputs: &[(&str, f64)],
-    publishes: &str,
-) -> SimNode {
-    SimNode {
-        name: name.into(),
-        app: app.into(),
-        threads,
-        timer_hz: timer,
-        cycle_cost: cycle,
-        inputs: inputs
-            .iter()
-            .map(|(t, c)| SimInput {
-                topic: t.to_string(),
-                cost: *c,
-            })
-            .collect(),
-        publishes: Some(publishes.into()),
-    }
-}
-
-/// 2 CPUs. Core `nav`: a 40 Hz lidar and a 40 Hz planner that needs 0.8 CPU.
-/// Non-core `det`: a 30 Hz camera and a 3-thread detector wanting 3 CPUs.
-/// Unlimited, the detector starves the planner (cmd_vel ≈ 19 Hz).
-fn sim(seed: u64) -> Arc<SimRobot> {
-    SimRobot::new(
-        2.0,
-        vec![
-            node("/lidar", "nav", 1.0, Some(40.0), 0.005, &[], "/scan"),
-            node(
-                "/planner",
-                "nav",
-                1.0,
-                Some(40.0),
-                0.01,
-                &[("/scan", 0.01)],
-                "/cmd_vel",
-            ),
-            node("/camera", "det", 1.0, Some(30.0), 0.01, &[], "/image"),
-            node(
-                "/detector",
-                "det",
-                3.0,
-                None,
-                0.0,
-                &[("/image", 0.1)],
-                "/detections",
-            ),
-        ],
-        0.01,
-        seed,
-    )
-}
-
-fn stack() -> Value {
-    let n = |name: &str| json!({"name": name, "run": {"command": "sim"}});
-    json!({"apiVersion": "configbot.dev/v1alpha1", "kind": "RobotStack",
-        "metadata": {"name": "robot"},
-        "spec": {"robot": {"model": "simbot", "cpus": 2}, "apps": [
-            {"name": "nav", "core": true, "nodes": [n("/lidar"), n("/planner")]},
-            {"name": "det", "nodes": [n("/camera"), n("/detector")]}]}})
-}
-
-fn spec(cmd_vel_target: f64, max_trials: u32, extra: Value) -> Value {
-    let mut s = json!({"apiVersion": "configbot.dev/v1alpha1", "kind": "PerformanceSpec",
-        "metadata": {"name": "nav-spec"},
-        "spec": {"stackRef": {"name": "robot"},
-            "metrics": [
-                {"name": "cmd-vel", "app": "nav", "source": {"topicRate": {"topic": "/cmd_vel"}},
-                 "target": {"atLeast": cmd_vel_target}},
-                {"name": "detections", "app": "det", "source": {"topicRate": {"topic": "/detections"}},
-                 "target": {"atLeast": 10}}],
-            "tuning": {"maxTrials": max_trials, "seed": 3}}});
-    if let Value::Object(m) = extra {
-        for (k, v) in m {
-            s["spec"]["tuning"][k] = v;
-        }
-    }
-    s
-}
+mod fixture;
+use fixture::{sim, spec, stack};
 
 struct Fixture {
     dir: tempfile::TempDir,
@@ -617,87 +534,6 @@ async fn server_with_a_robot_starts_a_runner_per_spec_and_stops_it_on_delete() {
             .0
             .len(),
         1
-    );
-    // The CLI: the trials view and the library as ConfigProfiles (export as YAML).
-    let cli = |args: &[&str]| {
-        let out = std::process::Command::new(env!("CARGO_BIN_EXE_configbot"))
-            .arg("--server")
-            .arg(format!("unix://{}", cfg.socket.display()))
-            .args(args)
-            .output()
-            .unwrap();
-        assert!(out.status.success(), "{args:?}: {out:?}");
-        String::from_utf8(out.stdout).unwrap()
-    };
-    let view = cli(&["get", "trials", "nav-spec"]);
-    assert!(
-        view.starts_with("nav-spec: Monitoring  trials 6/6 [####################]"),
-        "{view}"
-    );
-    assert!(
-        view.contains("baseline") && view.contains("CMD-VEL"),
-        "{view}"
-    );
-    // `-w` redraws on every status change (the runner keeps monitoring).
-    let mut watch = std::process::Command::new(env!("CARGO_BIN_EXE_configbot"))
-        .arg("--server")
-        .arg(format!("unix://{}", cfg.socket.display()))
-        .args(["get", "trials", "nav-spec", "-w"])
-        .stdout(std::process::Stdio::piped())
-        .spawn()
-        .unwrap();
-    let stdout = watch.stdout.take().unwrap();
-    let (tx, rx) = std::sync::mpsc::channel::<String>();
-    std::thread::spawn(move || {
-        use std::io::Read;
-        let mut stdout = stdout;
-        let mut buf = [0u8; 4096];
-        while let Ok(n) = stdout.read(&mut buf) {
-            if n == 0
-                || tx
-                    .send(String::from_utf8_lossy(&buf[..n]).into_owned())
-                    .is_err()
-            {
-                break;
-            }
-        }
-    });
-    let mut seen = String::new();
-    let read_until = |seen: &mut String, what: &str| {
-        try_wait_until(what, Duration::from_secs(30), POLL, || {
-            seen.extend(rx.try_iter());
-            seen.contains(what)
-        })
-        .is_ok()
-    };
-    assert!(
-        read_until(&mut seen, "nav-spec: Monitoring"),
-        "first view: {seen}"
-    );
-    // Any change to the object redraws: touch an annotation.
-    let mut obj = store
-        .get(Kind::PerformanceSpec, "default", "nav-spec")
-        .unwrap()
-        .unwrap();
-    obj["metadata"]["annotations"] = json!({"note": "watched"});
-    obj["metadata"]
-        .as_object_mut()
-        .unwrap()
-        .remove("resourceVersion");
-    store.put(Kind::PerformanceSpec, obj, false).unwrap();
-    let redrawn = read_until(&mut seen, "\x1b[2J\x1b[Hnav-spec: Monitoring");
-    let _ = watch.kill();
-    let _ = watch.wait();
-    assert!(redrawn, "get trials -w redraws on changes: {seen}");
-    let profiles = cli(&["get", "cprof"]);
-    assert!(
-        profiles.contains("simbot") && profiles.contains("nav-spec"),
-        "{profiles}"
-    );
-    let exported = cli(&["get", "cprof", "-o", "yaml"]);
-    assert!(
-        exported.contains("kind: ConfigProfile") && exported.contains("robotModel: simbot"),
-        "{exported}"
     );
     let tuning = server.tuning.clone().unwrap();
     assert_eq!(

@@ -17,9 +17,10 @@ use configbot_test_support::{ChildGuard, try_wait_until, wait_until};
 use common::{
     NodeRun, Robot, TestNode, app, configbot_bin, hog_stack_with, now_ms, phase, rfc3339_secs,
 };
+use configbot_manifests::Phase;
 
 fn outcome(o: &serde_json::Value) -> bool {
-    matches!(phase(o), "Monitoring" | "Unsat")
+    matches!(phase(o), Phase::Monitoring | Phase::Unsat)
 }
 
 #[test]
@@ -47,7 +48,7 @@ fn new_app_is_detected_and_known_context_reapplies_fast() {
         name,
         Duration::from_secs(60),
         "context A tuned",
-        |o| phase(o) == "Monitoring" && o["status"]["bestConfig"].is_object(),
+        |o| phase(o) == Phase::Monitoring && o["status"]["bestConfig"].is_object(),
     );
     let ctx_a = a["status"]["context"].as_str().unwrap_or("").to_string();
     let config_a = a["status"]["bestConfig"].clone();
@@ -192,7 +193,7 @@ fn new_app_is_detected_and_known_context_reapplies_fast() {
         Duration::from_secs(20),
         "the library config verified or rejected",
         |o| {
-            phase(o) == "Monitoring" && o["status"]["context"].as_str() == Some(ctx_a.as_str())
+            phase(o) == Phase::Monitoring && o["status"]["context"].as_str() == Some(ctx_a.as_str())
                 || !robot.events_with(name, "LibraryConfigFailed").is_empty()
         },
     );

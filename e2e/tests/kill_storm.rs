@@ -29,6 +29,7 @@ use configbot_test_support::try_wait_until;
 use common::{
     HOG_STACK_NODES, Robot, hog_stack, node_pids, phase, simnode_processes, trial_history,
 };
+use configbot_manifests::Phase;
 use serde_json::Value;
 
 const SERVER_KILLS: usize = 20;
@@ -250,7 +251,7 @@ fn kill_storm_during_tuning_loses_nothing() {
         name,
         Duration::from_secs(60),
         "tuning with a trial recorded",
-        |o| phase(o) == "Tuning" && !trial_history(o).is_empty(),
+        |o| phase(o) == Phase::Tuning && !trial_history(o).is_empty(),
     );
     let rs_uid = uid(&robot.get("rs", name).expect("the stack"));
     let spec_uid = uid(&first);
@@ -275,7 +276,7 @@ fn kill_storm_during_tuning_loses_nothing() {
             .get("pspec", name)
             .unwrap_or_else(|| panic!("{when}: no spec before the kill"));
         assert!(
-            matches!(phase(&before), "Baseline" | "Tuning"),
+            matches!(phase(&before), Phase::Baseline | Phase::Tuning),
             "{when}: the run left tuning before the storm ended: {} after {} trials\n{}",
             phase(&before),
             trial_history(&before).len(),
@@ -324,7 +325,7 @@ fn kill_storm_during_tuning_loses_nothing() {
         name,
         Duration::from_secs(120),
         "the run completes after the storm",
-        |o| matches!(phase(o), "Monitoring" | "Unsat"),
+        |o| matches!(phase(o), Phase::Monitoring | Phase::Unsat),
     );
     let last = trial_history(&done);
     assert_extends(&seen, &last, "after the storm", &robot, name);

@@ -9,6 +9,7 @@ mod common;
 use std::time::{Duration, Instant};
 
 use common::{HOG_STACK_NODES, HOGS, Robot, hog_stack, node_pids, phase};
+use configbot_manifests::Phase;
 use configbot_test_support::try_wait_until;
 
 /// The scheduler state letter of `pid` (`T` stopped, `Z` zombie).
@@ -77,9 +78,9 @@ fn remediation_stops_the_non_core_app() {
         name,
         Duration::from_secs(40),
         "12 s of remediation",
-        |o| phase(o) != "Remediating" || stopped_at.elapsed() >= Duration::from_secs(12),
+        |o| phase(o) != Phase::Remediating || stopped_at.elapsed() >= Duration::from_secs(12),
     );
-    assert_eq!(phase(&st), "Remediating", "{}", robot.event_log(name));
+    assert_eq!(phase(&st), Phase::Remediating, "{}", robot.event_log(name));
     let sat = st["status"]["satisfaction"].as_f64().expect("satisfaction");
     let base = &st["status"]["baseline"];
     assert!(
@@ -164,7 +165,7 @@ fn a_frozen_remediation_records_the_inputs_and_thaws_when_the_annotation_allows_
         .collect();
     assert_eq!(now, hog_pids, "the frozen hogs keep their processes");
     robot.wait_for("pspec", name, Duration::from_secs(10), "Remediating", |o| {
-        phase(o) == "Remediating"
+        phase(o) == Phase::Remediating
     });
 
     // The task executive allows tuning again.
@@ -198,7 +199,7 @@ fn a_frozen_remediation_records_the_inputs_and_thaws_when_the_annotation_allows_
     assert!(messages > 0, "the bag holds /scan messages: {info:?}");
     // ... and the run relearns.
     robot.wait_for("pspec", name, Duration::from_secs(20), "relearning", |o| {
-        matches!(phase(o), "Baseline" | "Tuning")
+        matches!(phase(o), Phase::Baseline | Phase::Tuning)
     });
     eprintln!(
         "e2e frozen remediation undo: {undone}; bag of {messages} messages; {:.0} s",

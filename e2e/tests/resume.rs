@@ -8,6 +8,7 @@ mod common;
 use std::time::{Duration, Instant};
 
 use common::{HOG_STACK_NODES, Robot, hog_stack, phase, trial_history};
+use configbot_manifests::Phase;
 
 #[test]
 fn kill_9_mid_tuning_resumes_without_repeating_trials() {
@@ -32,7 +33,7 @@ fn kill_9_mid_tuning_resumes_without_repeating_trials() {
     let killed_after = trial_history(&before);
     let done_before = robot.get("pspec", name).map(|o| trial_history(&o));
     assert!(
-        phase(&before) == "Tuning",
+        phase(&before) == Phase::Tuning,
         "killed mid-tuning: {}",
         phase(&before)
     );
@@ -43,7 +44,7 @@ fn kill_9_mid_tuning_resumes_without_repeating_trials() {
         name,
         Duration::from_secs(60),
         "the resumed run completes",
-        |o| matches!(phase(o), "Monitoring" | "Unsat"),
+        |o| matches!(phase(o), Phase::Monitoring | Phase::Unsat),
     );
     let after = trial_history(&done);
     // The resumed run kept every trial finished before the kill, unchanged.

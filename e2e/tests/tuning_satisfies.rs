@@ -11,6 +11,7 @@ mod common;
 use std::time::{Duration, Instant};
 
 use common::{HOG_STACK_NODES, Robot, hog_stack, phase, trial_history, trial_table};
+use configbot_manifests::Phase;
 
 #[test]
 fn tuning_satisfies_a_violating_stack() {
@@ -30,13 +31,14 @@ fn tuning_satisfies_a_violating_stack() {
         Duration::from_secs(75),
         "Monitoring with a best config",
         |o| {
-            phase(o) == "Monitoring" && o["status"]["bestConfig"].is_object() || phase(o) == "Unsat"
+            phase(o) == Phase::Monitoring && o["status"]["bestConfig"].is_object()
+                || phase(o) == Phase::Unsat
         },
     );
     let st = &done["status"];
     assert_eq!(
         phase(&done),
-        "Monitoring",
+        Phase::Monitoring,
         "{}\n{}",
         trial_table(&done),
         robot.event_log(name)
@@ -62,9 +64,14 @@ fn tuning_satisfies_a_violating_stack() {
         name,
         Duration::from_secs(40),
         "20 s of monitoring",
-        |o| phase(o) != "Monitoring" || tuned_at.elapsed() >= Duration::from_secs(20),
+        |o| phase(o) != Phase::Monitoring || tuned_at.elapsed() >= Duration::from_secs(20),
     );
-    assert_eq!(phase(&steady), "Monitoring", "{}", robot.event_log(name));
+    assert_eq!(
+        phase(&steady),
+        Phase::Monitoring,
+        "{}",
+        robot.event_log(name)
+    );
     assert!(
         robot.events_with(name, "ConstraintViolated").is_empty(),
         "{}",

@@ -7,6 +7,7 @@ mod common;
 use std::time::{Duration, Instant};
 
 use common::{Robot, app, phase, simnode, stack_yaml, trial_history};
+use configbot_manifests::Phase;
 
 #[test]
 fn impossible_spec_ends_unsat_naming_the_constraint() {
@@ -58,9 +59,9 @@ spec:
 "
     ));
     let done = robot.wait_for("pspec", name, Duration::from_secs(60), "Unsat", |o| {
-        matches!(phase(o), "Unsat" | "Monitoring")
+        matches!(phase(o), Phase::Unsat | Phase::Monitoring)
     });
-    assert_eq!(phase(&done), "Unsat", "{}", robot.event_log(name));
+    assert_eq!(phase(&done), Phase::Unsat, "{}", robot.event_log(name));
     let st = &done["status"];
     let reason = st["reason"].as_str().expect("a reason");
     assert!(

@@ -82,7 +82,7 @@ impl From<Error> for ApiError {
             // A kernel-rejected write: the controller needs the file and value.
             Error::Cgroup(C::Apply { .. }) => Self::Conflict(error_chain(&e)),
             _ => {
-                eprintln!("configbot-agent: internal error: {}", error_chain(&e));
+                tracing::error!(error = %error_chain(&e), "internal error answered as 500");
                 Self::Internal
             }
         }

@@ -130,6 +130,19 @@ impl AgentArgs {
 
 /// Reads a stack file: a JSON `StackSpec` (has top-level `apps`) or a
 /// RobotStack manifest (YAML or JSON, validated by `configbot_manifests`).
+/// Logs the crates' `tracing` events to stderr, filtered by `RUST_LOG`
+/// (default `info`; e.g. `RUST_LOG=configbot_ros1=debug`). Called once by
+/// each binary that runs the agent or the control plane; a second call is a
+/// no-op.
+pub fn init_logging() {
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
+    let _ = tracing_subscriber::fmt()
+        .with_writer(std::io::stderr)
+        .with_env_filter(filter)
+        .try_init();
+}
+
 pub fn read_stack(path: &Path) -> Result<StackSpec> {
     let text = std::fs::read_to_string(path).map_err(|source| Error::Io {
         path: path.to_path_buf(),
@@ -195,10 +208,10 @@ pub async fn run(args: AgentArgs) -> Result<()> {
     let layout = Layout::detect().map_err(io(&PathBuf::from("/proc/self/mountinfo")))?;
     let backend = open_backend(&layout, opts.settings.cgroup_root.clone())?;
     let rt = NodeRuntime::start(backend, opts, stack).await?;
-    eprintln!(
-        "configbot-agent: {}; ros master {}",
-        rt.monitor_status(),
-        rt.master_uri().as_deref().unwrap_or("disabled")
+    tracing::info!(
+        monitor = %rt.monitor_status(),
+        ros_master = rt.master_uri().as_deref().unwrap_or("disabled"),
+        "node agent started"
     );
 
     let unix = crate::api::bind_unix(&args.socket).map_err(io(&args.socket))?;

@@ -11,6 +11,7 @@
 
 pub mod agent;
 pub mod api;
+#[cfg(feature = "cli")]
 pub mod cli;
 pub mod client;
 pub mod contract;

@@ -7,6 +7,7 @@ use std::collections::BTreeMap;
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::Duration;
 
+use configbot_api::backoff::Backoff;
 use configbot_dataplane::{AdaptorSetting, EdgeId};
 use tokio::sync::Notify;
 
@@ -67,19 +68,19 @@ pub(crate) fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
 }
 
 impl Core {
-    /// Writes the master state to the database (errors are reported on
-    /// stderr: the in-memory master keeps serving).
+    /// Writes the master state to the database (errors are logged: the
+    /// in-memory master keeps serving).
     pub fn persist(&self) {
         let snapshot = lock(&self.state).clone();
         if let Err(e) = lock(&self.store).save(&snapshot) {
-            eprintln!("configbot-ros1: persisting master state: {e}");
+            tracing::error!(error = %e, "persisting master state");
         }
     }
 
     pub fn persist_adaptors(&self) {
         let s = lock(&self.settings).clone();
         if let Err(e) = lock(&self.store).save_adaptors(&s) {
-            eprintln!("configbot-ros1: persisting adaptor settings: {e}");
+            tracing::error!(error = %e, "persisting adaptor settings");
         }
     }
 
@@ -197,7 +198,7 @@ impl Core {
     }
 
     async fn send_publisher_update(self: &Arc<Self>, edge: &EdgeId) {
-        let mut backoff = Duration::from_millis(250);
+        let mut backoff = Backoff::new(Duration::from_millis(250), Duration::from_secs(2));
         for attempt in 1..=UPDATE_ATTEMPTS {
             if self.closed.load(std::sync::atomic::Ordering::Relaxed) {
                 return;
@@ -220,11 +221,15 @@ impl Core {
             match http::call(&api, "publisherUpdate", &params, self.timeout).await {
                 Err(e @ (http::HttpError::Io { .. } | http::HttpError::Timeout { .. })) => {
                     if attempt == UPDATE_ATTEMPTS {
-                        eprintln!("configbot-ros1: {e} ({attempt} attempts); giving up");
+                        tracing::warn!(
+                            error = %e,
+                            attempts = attempt,
+                            topic = %edge.topic,
+                            "publisherUpdate: giving up"
+                        );
                         return;
                     }
-                    tokio::time::sleep(backoff).await;
-                    backoff *= 2;
+                    tokio::time::sleep(backoff.next_delay()).await;
                 }
                 _ => return,
             }

@@ -6,6 +6,7 @@ use std::collections::BTreeMap;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
+use configbot_api::backoff::Backoff;
 use tokio::task::JoinHandle;
 
 use crate::tcpros::{self, Header};
@@ -116,19 +117,18 @@ async fn run(
     sink: Arc<dyn FrameSink>,
     timeout: Duration,
 ) {
-    let mut backoff = Duration::from_millis(100);
+    let mut backoff = Backoff::new(Duration::from_millis(100), Duration::from_secs(2));
     loop {
         match tcpros::subscribe(&api, &caller, &topic, &ty, timeout).await {
             Ok(mut c) => {
-                backoff = Duration::from_millis(100);
+                backoff.reset();
                 sink.on_header(&api, &c.header);
                 while let Ok(f) = tcpros::read_block(&mut c.stream, &c.peer).await {
                     sink.on_frame(&api, f);
                 }
             }
             Err(_) => {
-                tokio::time::sleep(backoff).await;
-                backoff = (backoff * 2).min(Duration::from_secs(2));
+                tokio::time::sleep(backoff.next_delay()).await;
             }
         }
         tokio::time::sleep(Duration::from_millis(50)).await;

@@ -126,7 +126,7 @@ impl IntoResponse for ApiError {
             _ => json!({}),
         };
         if let ApiError::Internal(detail) = &self {
-            eprintln!("configbot: internal error: {detail}");
+            tracing::error!(%detail, "internal error answered as 500");
         }
         (
             code,

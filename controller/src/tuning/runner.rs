@@ -223,9 +223,10 @@ impl Runner {
                 ) = run.as_ref().map(|r| &r.state)
                     && let Err(e) = self.resume(remedy, &remedy.apps).await
                 {
-                    eprintln!(
-                        "configbot: {}/{} deleted while remediating; resuming its apps: {e}",
-                        self.ns, self.name
+                    tracing::warn!(
+                        spec = %format_args!("{}/{}", self.ns, self.name),
+                        error = %e,
+                        "spec deleted while remediating; resuming its paused apps failed"
                     );
                 }
                 let _ = store.delete_state(STATE_SCOPE, &key);
@@ -647,7 +648,7 @@ impl Runner {
 }
 
 /// CPUs this process may run on.
-pub(crate) fn machine_cpus() -> f64 {
+pub fn machine_cpus() -> f64 {
     std::thread::available_parallelism().map_or(1.0, |n| n.get() as f64)
 }
 
@@ -701,7 +702,7 @@ impl TuningManager {
                 let _ = h.await;
             }
             if let Err(e) = store.delete_state(STATE_SCOPE, &key) {
-                eprintln!("configbot: tuning run {key}: {e}");
+                tracing::warn!(run = %key, error = %e, "removing a stopped tuning run's state");
             }
         });
     }

@@ -1,5 +1,5 @@
 //! The `configbot` program, built inside the e2e package for its tests.
 
 fn main() -> std::process::ExitCode {
-    configbot_controller::cli::main()
+    configbot::main()
 }

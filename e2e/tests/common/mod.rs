@@ -21,6 +21,7 @@ use std::sync::{Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 
 use configbot_cgroups::{CgroupBackend, Layout, SubtreeRoot, V1Backend};
+use configbot_manifests::Phase;
 use configbot_test_support::cgroup::{remove_subtree, remove_tree};
 use configbot_test_support::{CpuCgroup, free_port, try_wait_until};
 use serde_json::Value;
@@ -711,8 +712,8 @@ pub fn stack_yaml(name: &str, apps: &[TestApp]) -> String {
 }
 
 /// The phase of a PerformanceSpec object.
-pub fn phase(o: &Value) -> &str {
-    o["status"]["phase"].as_str().unwrap_or("")
+pub fn phase(o: &Value) -> Phase {
+    Phase::parse(o["status"]["phase"].as_str().unwrap_or(""))
 }
 
 /// `status.trialHistory` of a PerformanceSpec object.

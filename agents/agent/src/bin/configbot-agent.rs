@@ -12,6 +12,7 @@ struct Cli {
 #[tokio::main(flavor = "current_thread")]
 async fn main() -> anyhow::Result<()> {
     let cli = Cli::parse();
+    configbot_agent::cli::init_logging();
     configbot_agent::cli::run(cli.args)
         .await
         .map_err(|e| anyhow::anyhow!(configbot_agent::agent::error_chain(&e)))

@@ -35,6 +35,13 @@ fn parse_adapt(s: &str) -> anyhow::Result<(EdgeId, AdaptorSetting)> {
 
 #[tokio::main]
 async fn main() -> anyhow::Result<()> {
+    let _ = tracing_subscriber::fmt()
+        .with_writer(std::io::stderr)
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env()
+                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info")),
+        )
+        .try_init();
     let mut cfg = Ros1Config::default();
     let mut db = PathBuf::from("configbot-ros1.db");
     let mut adapt = Vec::new();

@@ -8,7 +8,7 @@ use std::path::Path;
 
 use tokio::task::JoinHandle;
 
-use crate::cli::demo::PrivateRobot;
+use crate::demo::PrivateRobot;
 
 /// The robot a bench step runs on, or none between steps.
 #[derive(Default)]

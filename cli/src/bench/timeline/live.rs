@@ -16,12 +16,12 @@ use configbot_tuning::status::TUNED;
 use hyper::Method;
 
 use super::{Sample, SeenEvent, Switch, Timeline, chart, moments, seconds, segments};
-use crate::cli::bench::owner::Current;
-use crate::cli::bench::{self, BenchArgs, Plan, example_for, follow, outcome, start};
-use crate::cli::demo::{PrivateRobot, measure_defs};
-use crate::robot::EmbeddedRobot;
-use crate::store::Store;
-use crate::tuning::robot::NodeApi;
+use crate::bench::owner::Current;
+use crate::bench::{self, BenchArgs, Plan, example_for, follow, outcome, start};
+use crate::demo::{PrivateRobot, measure_defs};
+use configbot_controller::robot::EmbeddedRobot;
+use configbot_controller::store::Store;
+use configbot_controller::tuning::robot::NodeApi;
 use configbot_tuning::measure::{self, MetricDef};
 
 /// Status and event poll interval of [`watch`].

@@ -66,7 +66,7 @@ async fn targets(client: &Client, a: &DeleteArgs) -> anyhow::Result<Vec<(Kind, S
             .into_iter()
             .flatten()
             .map(|o| {
-                let (ns, name) = crate::store::key_of(o);
+                let (ns, name) = configbot_controller::store::key_of(o);
                 (kind, ns, name)
             })
             .collect());

@@ -4,8 +4,8 @@ use std::process::ExitCode;
 
 use super::output::{self, Output};
 use crate::client::{Client, path};
-use crate::table;
 use clap::Args;
+use configbot_controller::table;
 use configbot_manifests::{Kind, PerformanceSpecStatus, RobotStackStatus, decode_status};
 use serde_json::Value;
 
@@ -224,7 +224,7 @@ async fn watch_until_error(
 /// `configbot get trials SPEC [-w]`: the tuning run of one PerformanceSpec;
 /// with `-w` the view is redrawn on every change.
 async fn trials(client: &Client, a: &GetArgs) -> anyhow::Result<ExitCode> {
-    use crate::tuning::view::trials_view;
+    use configbot_controller::tuning::view::trials_view;
     let Some(name) = &a.name else {
         anyhow::bail!("usage: configbot get trials SPEC [-w] (SPEC is a PerformanceSpec name)");
     };

@@ -12,8 +12,8 @@ use serde::Serialize;
 
 use super::owner::Current;
 use super::{BenchArgs, MethodResult, Plan, example_for, start};
-use crate::cli::demo::{measure_defs, print_eval};
-use crate::tuning::robot::NodeApi;
+use crate::demo::{measure_defs, print_eval};
+use configbot_controller::tuning::robot::NodeApi;
 use configbot_tuning::measure;
 
 /// One cell of the matrix: `from`'s best config measured on `on`.
@@ -124,7 +124,7 @@ pub fn matrix_table(entries: &[CrossEntry]) -> String {
     let mut out = format!(
         "Cross-evaluation (satisfaction / non-core Hz: {}; * = tuned on that stack):\n{}",
         names.join(","),
-        crate::table::render(&headers, &body)
+        configbot_controller::table::render(&headers, &body)
     );
     for e in entries.iter().filter(|e| !e.dropped.is_empty()) {
         out.push_str(&format!(

@@ -7,9 +7,9 @@ use std::io::Read;
 use std::path::Path;
 use std::process::ExitCode;
 
-use crate::api::selector::Selector;
 use crate::client::{Client, ClientError, path};
 use clap::Args;
+use configbot_controller::api::selector::Selector;
 use configbot_manifests::{Kind, Loaded, ManifestError, ManifestErrors};
 use hyper::Method;
 
@@ -167,7 +167,7 @@ pub async fn apply_one(
     kind: Kind,
     dry_run: bool,
 ) -> Result<Applied, ClientError> {
-    let (ns, name) = crate::store::key_of(obj);
+    let (ns, name) = configbot_controller::store::key_of(obj);
     // The field manager its writes are recorded under in managedFields.
     let q = if dry_run {
         "?fieldManager=configbot&dryRun=All"
@@ -260,7 +260,7 @@ pub async fn run(client: &Client, a: &ApplyArgs) -> anyhow::Result<ExitCode> {
         for kind in Kind::ALL.into_iter().rev() {
             let list = client.get(&path(kind, None, None)).await?;
             for item in list["items"].as_array().into_iter().flatten() {
-                let (ns, name) = crate::store::key_of(item);
+                let (ns, name) = configbot_controller::store::key_of(item);
                 if sel.matches_object(item) && !applied.contains(&(kind, ns.clone(), name.clone()))
                 {
                     if !a.dry_run {

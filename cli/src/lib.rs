@@ -1,11 +1,17 @@
-//! Command-line interface: argument definitions and dispatch.
+//! The `configbot` program: argument definitions and dispatch of every
+//! command, the control plane (`serve`, from `configbot-controller`), the
+//! node agent (`agent`, from `configbot-agent`), the client commands against
+//! the API (`apply`, `get`, `describe`, `delete`; [`client`]), the offline
+//! `validate`, and the `demo` and `bench` with their reports ([`report`]).
 
 mod apply;
 mod bench;
+pub mod client;
 mod delete;
 mod demo;
 mod get;
 mod output;
+pub mod report;
 mod robot;
 
 use std::path::PathBuf;
@@ -25,7 +31,7 @@ Examples:
   kubectl --server https://127.0.0.1:8443 --certificate-authority /var/lib/configbot/tls.crt \\
           --token \"$(cat token)\" get rs         # stock kubectl works too (serve --listen)
 
-Kinds: robotstack (rs), performancespec (pspec).";
+Kinds: robotstack (rs), performancespec (pspec), configprofile (cprof).";
 
 /// ConfigBot finds and keeps a resource configuration (CPU limits, data-flow
 /// rates) that makes a ROS robot stack meet its PerformanceSpec.
@@ -166,6 +172,7 @@ struct ValidateArgs {
 
 pub fn main() -> std::process::ExitCode {
     let cli = Cli::parse();
+    configbot_agent::cli::init_logging();
     let rt = match tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
         .enable_all()
@@ -207,7 +214,7 @@ async fn run(cli: Cli) -> anyhow::Result<std::process::ExitCode> {
                 }
                 _ => None,
             };
-            let cfg = crate::server::ServerConfig {
+            let cfg = configbot_controller::server::ServerConfig {
                 db: a.db.clone(),
                 socket: a.socket.clone(),
                 tcp,

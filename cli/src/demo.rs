@@ -22,36 +22,36 @@ use serde_json::{Value, json};
 use super::RobotArgs;
 use crate::client::{Client, Endpoint};
 use crate::report::svg::{Chart, Mark, Rule, Series, colors};
-use crate::robot::EmbeddedRobot;
-use crate::server::{Server, ServerConfig};
-use crate::tuning::robot::{NodeApi, Robot};
+use configbot_controller::robot::EmbeddedRobot;
+use configbot_controller::server::{Server, ServerConfig};
+use configbot_controller::tuning::robot::{NodeApi, Robot};
 use configbot_tuning::measure::{self, MetricDef};
 
 /// The example stacks, embedded so the demo runs from any directory.
 pub const EXAMPLES: [(&str, &str); 6] = [
     (
         "basic-nav.yaml",
-        include_str!("../../../manifests/examples/basic-nav.yaml"),
+        include_str!("../../manifests/examples/basic-nav.yaml"),
     ),
     (
         "intermed-nav.yaml",
-        include_str!("../../../manifests/examples/intermed-nav.yaml"),
+        include_str!("../../manifests/examples/intermed-nav.yaml"),
     ),
     (
         "terrain-nav.yaml",
-        include_str!("../../../manifests/examples/terrain-nav.yaml"),
+        include_str!("../../manifests/examples/terrain-nav.yaml"),
     ),
     (
         "real-perception.yaml",
-        include_str!("../../../manifests/examples/real/perception.yaml"),
+        include_str!("../../manifests/examples/real/perception.yaml"),
     ),
     (
         "real-nodelets.yaml",
-        include_str!("../../../manifests/examples/real/nodelets.yaml"),
+        include_str!("../../manifests/examples/real/nodelets.yaml"),
     ),
     (
         "real-two-paths.yaml",
-        include_str!("../../../manifests/examples/real/two-paths.yaml"),
+        include_str!("../../manifests/examples/real/two-paths.yaml"),
     ),
 ];
 
@@ -253,7 +253,7 @@ pub async fn run(a: &DemoArgs) -> anyhow::Result<ExitCode> {
     println!(
         "==> ConfigBot demo: {} on this machine ({} CPUs)",
         a.stack,
-        crate::tuning::runner::machine_cpus()
+        configbot_controller::tuning::runner::machine_cpus()
     );
     println!("    report folder {}", out.display());
     // A fresh robot every time: no stack, registrations or library from a previous run.
@@ -388,7 +388,9 @@ pub async fn wait_for_outcome(
                     "    trial {} holds with its non-core knobs backed off to {:.0} %: {}",
                     i + 1,
                     f * 100.0,
-                    crate::tuning::view::config_text(&st.best_config.clone().unwrap_or_default())
+                    configbot_controller::tuning::view::config_text(
+                        &st.best_config.clone().unwrap_or_default()
+                    )
                 );
             }
             return Ok(st);
@@ -416,7 +418,7 @@ pub fn print_trial(st: &PerformanceSpecStatus, t: &TrialStatus) {
         } else {
             "infeasible"
         },
-        crate::tuning::view::config_text(&t.config),
+        configbot_controller::tuning::view::config_text(&t.config),
     );
 }
 
@@ -470,7 +472,7 @@ pub fn before_after_table(
         ]);
     }
     let headers = ["METRIC", "TARGET", "DEFAULT", "CONFIGBOT"].map(String::from);
-    crate::table::render(&headers, &rows)
+    configbot_controller::table::render(&headers, &rows)
 }
 
 /// Writes progress.svg (each trial, best so far) and core-rate.svg (per-second

@@ -25,8 +25,8 @@ use serde_json::Value;
 
 use super::owner::Current;
 use super::{BenchArgs, FLOW_TIMEOUT, MethodResult, result, start, tuned, wait_until_up};
-use crate::cli::demo::{example, measure_defs};
-use crate::tuning::robot::Robot;
+use crate::demo::{example, measure_defs};
+use configbot_controller::tuning::robot::Robot;
 use configbot_tuning::knobs::KnobSpace;
 use configbot_tuning::measure::{self, MetricDef};
 use configbot_tuning::settle;
@@ -398,7 +398,7 @@ pub fn summary(defs_of: &dyn Fn(&str) -> Vec<MetricDef>, rows: &[MethodResult]) 
         ]);
     }
     let h = ["STACK", "METHOD", "SATISFACTION", "OBJECTIVE", "X ORACLE"].map(String::from);
-    crate::table::render(&h, &out)
+    configbot_controller::table::render(&h, &out)
 }
 
 #[cfg(test)]

@@ -33,7 +33,7 @@ use self::owner::Current;
 use super::demo::{
     PrivateRobot, example, histogram_chart, measure_defs, print_eval, print_trial, settled,
 };
-use crate::tuning::robot::{NodeApi, Robot};
+use configbot_controller::tuning::robot::{NodeApi, Robot};
 use configbot_tuning::knobs::{self, KnobSpace};
 use configbot_tuning::measure::{self, Evaluation, MetricDef};
 use configbot_tuning::startup::flowing;
@@ -288,7 +288,7 @@ pub async fn run(a: &BenchArgs) -> anyhow::Result<ExitCode> {
     let mut cur = Current::new(a.subtree_cpu_weight);
     let result = tokio::select! {
         r = bench(a, &mut cur) => Some(r),
-        _ = crate::cli::shutdown_signal() => None,
+        _ = crate::shutdown_signal() => None,
     };
     if result.is_none() {
         eprintln!(
@@ -665,7 +665,7 @@ pub fn table(results: &[MethodResult]) -> String {
         "SETTLED S",
     ]
     .map(String::from);
-    crate::table::render(&h, &rows)
+    configbot_controller::table::render(&h, &rows)
 }
 
 fn write_plots(

@@ -9,7 +9,7 @@ use std::fmt;
 use configbot_manifests::Kind;
 use serde_json::{Value, json};
 
-use crate::table;
+use configbot_controller::table;
 
 /// An `-o` format.
 #[derive(Debug, Clone, PartialEq)]

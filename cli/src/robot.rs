@@ -9,8 +9,8 @@ use configbot_agent::runtime::{DEFAULT_BACKEND, DataPlaneOptions, RuntimeOptions
 use configbot_cgroups::{CpuWeight, Layout, SubtreeRoot, open_backend};
 
 use super::RobotArgs;
-use crate::robot::{EmbeddedRobot, RemoteRobot};
-use crate::server::{Server, ServerConfig};
+use configbot_controller::robot::{EmbeddedRobot, RemoteRobot};
+use configbot_controller::server::{Server, ServerConfig};
 
 /// The runtime options of an embedded agent whose files live in `dir`.
 pub fn runtime_options(dir: &Path, args: &RobotArgs) -> anyhow::Result<RuntimeOptions> {
