@@ -4,14 +4,12 @@
 
 use std::time::Duration;
 
-use configbot_controller::server::{Server, ServerConfig};
 use configbot_manifests::Kind;
 use configbot_test_support::{try_wait_until, try_wait_until_async};
 use serde_json::{Value, json};
 
 #[path = "../../controller/tests/fixture/mod.rs"]
 mod fixture;
-use fixture::{sim, spec, stack};
 
 /// How often the condition waits look.
 const POLL: Duration = Duration::from_millis(20);
@@ -19,20 +17,8 @@ const POLL: Duration = Duration::from_millis(20);
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_trials_view_redraws_on_change_and_the_library_exports_as_yaml() {
     let dir = tempfile::tempdir().unwrap();
-    let cfg = ServerConfig {
-        db: dir.path().join("db.sqlite"),
-        socket: dir.path().join("api.sock"),
-        tcp: None,
-    };
-    let robot = sim(11);
-    let server = Server::start_with_robot_and_clock(&cfg, robot.clone(), robot.clone())
-        .await
-        .unwrap();
+    let (server, cfg) = fixture::serve(dir.path(), 11).await;
     let store = server.state.store.clone();
-    store.put(Kind::RobotStack, stack(), true).unwrap();
-    store
-        .put(Kind::PerformanceSpec, spec(35.0, 6, json!({})), true)
-        .unwrap();
     let mut last = Value::Null;
     try_wait_until_async("Monitoring", Duration::from_secs(120), POLL, async || {
         last = store

@@ -482,22 +482,9 @@ async fn remediation_can_freeze_the_non_core_app_and_record_its_inputs() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn server_with_a_robot_starts_a_runner_per_spec_and_stops_it_on_delete() {
-    use configbot_controller::server::{Server, ServerConfig};
     let dir = tempfile::tempdir().unwrap();
-    let cfg = ServerConfig {
-        db: dir.path().join("db.sqlite"),
-        socket: dir.path().join("api.sock"),
-        tcp: None,
-    };
-    let robot = sim(11);
-    let server = Server::start_with_robot_and_clock(&cfg, robot.clone(), robot.clone())
-        .await
-        .unwrap();
+    let (server, cfg) = fixture::serve(dir.path(), 11).await;
     let store = server.state.store.clone();
-    store.put(Kind::RobotStack, stack(), true).unwrap();
-    store
-        .put(Kind::PerformanceSpec, spec(35.0, 6, json!({})), true)
-        .unwrap();
     let mut last = Value::Null;
     let monitoring =
         try_wait_until_async("Monitoring", Duration::from_secs(120), POLL, async || {
