@@ -483,7 +483,7 @@ async fn remediation_can_freeze_the_non_core_app_and_record_its_inputs() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn server_with_a_robot_starts_a_runner_per_spec_and_stops_it_on_delete() {
     let dir = tempfile::tempdir().unwrap();
-    let (server, cfg) = fixture::serve(dir.path(), 11).await;
+    let (server, _cfg) = fixture::serve(dir.path(), 11).await;
     let store = server.state.store.clone();
     let mut last = Value::Null;
     let monitoring =
