@@ -15,8 +15,8 @@ use configbot_optimizer::Observation;
 use super::knobs::KnobSpace;
 use super::library;
 use super::machine::{
-    BACKOFF_MIN, BACKOFF_STEP, Candidate, Env, Output, Remedy, Run, SATISFIED, State, TrialRecord,
-    drain_first, finish, normal, warning,
+    BACKOFF_FASTEST, BACKOFF_MIN, BACKOFF_STEP, BACKOFF_STEPS, Candidate, Env, Output, Remedy, Run,
+    SATISFIED, State, TrialRecord, drain_first, finish, normal, warning,
 };
 use super::measure::{self, MetricDef};
 use super::monitor::{ConstraintMonitor, Trigger};
@@ -175,23 +175,33 @@ pub fn unsat_reason(run: &Run, defs: &[MetricDef]) -> (ResourceConfig, String) {
 }
 
 /// After the best trial (`index`) failed verification at `fraction` (1 =
-/// as measured): verify it again with its non-core knobs one step lower, for a
-/// margin from the core constraint's edge (the trial's short window may have
-/// caught a lucky moment, or a config whose non-core node only keeps up from
-/// an empty backlog). Only the first rejected trial backs off, at most to
+/// as measured; `step` back-offs so far, with `bounds` its core constraints'
+/// verification bounds): verify it again with its non-core knobs lower (see
+/// [`next_fraction`]), for a margin from the core constraint's edge (the
+/// trial's short window may have caught a lucky moment, or a config whose
+/// non-core node only keeps up from an empty backlog). Only the first
+/// rejected trial backs off, at most [`BACKOFF_STEPS`] times and not below
 /// [`BACKOFF_MIN`]; then the next best trial is verified as measured.
+#[allow(clippy::too_many_arguments)]
 fn back_off(
     run: &mut Run,
     env: &Env<'_>,
     defs: &[MetricDef],
     index: usize,
     fraction: f64,
+    step: u32,
+    bounds: &[f64],
     out: &mut Vec<Output>,
 ) -> State {
-    let next = fraction * BACKOFF_STEP;
+    let corner = run
+        .corner_trial
+        .and_then(|i| run.trials.get(i))
+        .filter(|c| c.feasible())
+        .map(|c| c.eval.constraints.as_slice());
+    let next = next_fraction(defs, corner, fraction, bounds);
     let first = run.rejected.first() == Some(&index);
     let point = run.trials.get(index).map(|t| t.x.clone());
-    if let (true, true, Some(x)) = (first, next >= BACKOFF_MIN, point)
+    if let (true, true, true, Some(x)) = (first, step < BACKOFF_STEPS, next >= BACKOFF_MIN, point)
         && let Some(y) = run.knobs.backed_off(&x, next)
     {
         out.push(normal(
@@ -205,12 +215,44 @@ fn back_off(
             candidate: Candidate::Backoff {
                 index,
                 fraction: next,
+                step: step + 1,
             },
             config: run.knobs.to_config(&y),
         };
         return drain_first(run, env, verify);
     }
     finish(run, env, defs, out)
+}
+
+/// The fraction to verify next after a verification at `f` failed (pure).
+/// Along the back-off line, the restrictive corner (fraction 0, whose trial
+/// held with `corner`'s bounds) and the failed verification (fraction `f`,
+/// `bounds`) give each core constraint a secant; the next fraction is where
+/// the first of them reaches its target, kept within
+/// [[`BACKOFF_FASTEST`]·f, [`BACKOFF_STEP`]·f]. Without a measured corner,
+/// or when every bound held (the windows missed), [`BACKOFF_STEP`]·f.
+pub fn next_fraction(defs: &[MetricDef], corner: Option<&[f64]>, f: f64, bounds: &[f64]) -> f64 {
+    let slowest = f * BACKOFF_STEP;
+    let Some(corner) = corner else {
+        return slowest;
+    };
+    let margin = |d: &MetricDef, v: f64| {
+        if d.at_least {
+            v - d.target
+        } else {
+            d.target - v
+        }
+    };
+    let core = defs.iter().filter(|d| d.core);
+    let crossing = core
+        .zip(corner)
+        .zip(bounds)
+        .filter_map(|((d, &c), &b)| {
+            let (at_corner, here) = (margin(d, c), margin(d, b));
+            (at_corner > 0.0 && here < 0.0).then(|| f * at_corner / (at_corner - here))
+        })
+        .fold(slowest, f64::min);
+    crossing.max(f * BACKOFF_FASTEST)
 }
 
 pub fn list_or_none(apps: &[String]) -> String {
@@ -301,7 +343,9 @@ pub fn after_tip(
 ) -> Option<State> {
     let (index, held) = match run.applied {
         Some(Candidate::Trial { index }) => (index, format!("trial {index}")),
-        Some(Candidate::Backoff { index, fraction }) => (
+        Some(Candidate::Backoff {
+            index, fraction, ..
+        }) => (
             index,
             format!("trial {index} backed off to {:.0} %", fraction * 100.0),
         ),
@@ -330,19 +374,21 @@ pub fn after_tip(
 }
 
 /// Why a verification failed, for its event: too few windows held, or they
-/// held but their spread predicts misses (the bound of [`measure::robust_value`]).
-pub fn shortfall(defs: &[MetricDef], eval: &measure::Evaluation) -> String {
+/// held but their spread predicts misses (`bounds`, from
+/// [`measure::verification_bounds`]).
+pub fn shortfall(defs: &[MetricDef], eval: &measure::Evaluation, bounds: &[f64]) -> String {
     let held = format!("{:.1} % of the windows", eval.satisfaction * 100.0);
     if eval.satisfaction < SATISFIED {
         return format!("held in only {held}");
     }
     let core = defs.iter().filter(|d| d.core);
-    match core.zip(&eval.constraints).find(|(d, v)| !d.holds(**v)) {
+    match core.zip(bounds).find(|(d, v)| !d.holds(**v)) {
         Some((d, v)) => format!(
-            "held in {held}, but their spread predicts misses: {} of {:.1} by mean {} 2.33·sd, target {}",
+            "held in {held}, but their spread predicts misses: the tolerance bound of {} ({:.1} % of windows, {:.0} % confidence) is {:.1}, target {}",
             d.name,
+            measure::VERIFY_COVERAGE * 100.0,
+            measure::VERIFY_CONFIDENCE * 100.0,
             v,
-            if d.at_least { "−" } else { "+" },
             d.target_text()
         ),
         None => format!("held in {held}"),
@@ -351,7 +397,8 @@ pub fn shortfall(defs: &[MetricDef], eval: &measure::Evaluation) -> String {
 
 /// A verification measured: monitor the candidate, or try the next one.
 /// It holds when ≥ [`SATISFIED`] of its windows held and every core
-/// constraint's bound holds over them (the same rule as a trial's).
+/// constraint's tolerance bound holds over them (stricter than a trial's
+/// 2.33·sd: see [`measure::VERIFY_COVERAGE`]).
 #[allow(clippy::too_many_arguments)]
 pub fn verified(
     run: &mut Run,
@@ -364,15 +411,22 @@ pub fn verified(
 ) -> State {
     let eval = measure::evaluate(defs, r, env.spec.tuning.scalarization);
     let sat = eval.satisfaction;
-    if sat >= SATISFIED && eval.feasible {
+    let bounds = measure::verification_bounds(defs, r);
+    let certified = defs
+        .iter()
+        .filter(|d| d.core)
+        .zip(&bounds)
+        .all(|(d, v)| d.holds(*v));
+    if sat >= SATISFIED && eval.feasible && certified {
         out.push(normal(
             Reason::Satisfied,
             format!(
                 "config from {} holds: satisfaction {:.1} %, objective {}",
                 match &candidate {
                     Candidate::Trial { index } => format!("trial {index}"),
-                    Candidate::Backoff { index, fraction } =>
-                        format!("trial {index} backed off to {:.0} %", fraction * 100.0),
+                    Candidate::Backoff {
+                        index, fraction, ..
+                    } => format!("trial {index} backed off to {:.0} %", fraction * 100.0),
                     Candidate::Baseline => "the baseline".into(),
                     Candidate::Library { profile } =>
                         format!("library profile {}", profile.metadata.name),
@@ -414,7 +468,7 @@ pub fn verified(
         Candidate::Trial { index } => {
             out.push(warning(
                 Reason::VerificationFailed,
-                format!("trial {index} {}", shortfall(defs, &eval)),
+                format!("trial {index} {}", shortfall(defs, &eval, &bounds)),
             ));
             run.rejected.push(index);
             match run.tipped.take() {
@@ -423,19 +477,23 @@ pub fn verified(
                     trigger: t,
                     skip_library: true,
                 },
-                None => back_off(run, env, defs, index, 1.0, out),
+                None => back_off(run, env, defs, index, 1.0, 0, &bounds, out),
             }
         }
-        Candidate::Backoff { index, fraction } => {
+        Candidate::Backoff {
+            index,
+            fraction,
+            step,
+        } => {
             out.push(warning(
                 Reason::VerificationFailed,
                 format!(
                     "trial {index} backed off to {:.0} % {}",
                     fraction * 100.0,
-                    shortfall(defs, &eval)
+                    shortfall(defs, &eval, &bounds)
                 ),
             ));
-            back_off(run, env, defs, index, fraction, out)
+            back_off(run, env, defs, index, fraction, step, &bounds, out)
         }
         Candidate::Baseline => {
             if env.tuning_allowed {

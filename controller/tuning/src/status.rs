@@ -54,9 +54,12 @@ pub fn status(
     };
     (s.best_trial, s.best_trial_backoff) = match (&run.applied, &monitored) {
         (Some(Candidate::Trial { index }), Some(_)) => (Some(*index as u32), None),
-        (Some(Candidate::Backoff { index, fraction }), Some(_)) => {
-            (Some(*index as u32), Some(*fraction))
-        }
+        (
+            Some(Candidate::Backoff {
+                index, fraction, ..
+            }),
+            Some(_),
+        ) => (Some(*index as u32), Some(*fraction)),
         _ => (None, None),
     };
     s.rejected_trials = run.rejected.iter().map(|&i| i as u32).collect();
@@ -120,7 +123,9 @@ fn conditions(run: &Run) -> (Cond, Cond) {
                     Reason::Satisfied,
                     format!("applied the best trial ({index})"),
                 ),
-                Some(Candidate::Backoff { index, fraction }) => (
+                Some(Candidate::Backoff {
+                    index, fraction, ..
+                }) => (
                     Reason::Satisfied,
                     format!(
                         "applied the best trial ({index}) with its non-core knobs backed off to {:.0} %",

@@ -3,7 +3,7 @@
 //! near-best rule, and when safe exploration applies.
 
 use super::*;
-use crate::{knobs, search};
+use crate::{knobs, measure, search};
 
 #[test]
 fn early_stop_is_a_censored_observation() {
@@ -119,8 +119,9 @@ fn verify(run: Run, env: &Env<'_>, cmd: &[f64]) -> (Run, Vec<Output>) {
 }
 
 /// A verification whose every window met 35 Hz but whose spread predicts
-/// misses (mean 38.25, sd 2.3: bound 32.9) fails like one that missed, and
-/// says why; the same windows with half the spread hold.
+/// misses (mean 38.25, sd 2.3: tolerance bound 29.6 from ten windows) fails
+/// like one that missed, and says why; the same windows with a fifth of the
+/// spread hold.
 #[test]
 fn a_verification_whose_windows_held_but_spread_predicts_misses_fails() {
     let (st, sp) = (stack(), spec(1.0, 5));
@@ -136,7 +137,7 @@ fn a_verification_whose_windows_held_but_spread_predicts_misses_fails() {
         o => panic!("{o:?}"),
     };
     assert!(
-        text.contains("held in 100.0 % of the windows, but their spread predicts misses: cmd of 32.9 by mean − 2.33·sd"),
+        text.contains("held in 100.0 % of the windows, but their spread predicts misses: the tolerance bound of cmd (99.5 % of windows, 90 % confidence) is 29.6, target >= 35"),
         "{text}"
     );
     assert!(matches!(
@@ -146,10 +147,32 @@ fn a_verification_whose_windows_held_but_spread_predicts_misses_fails() {
             ..
         }
     ));
-    let narrow: Vec<f64> = wide.iter().map(|v| 38.0 + (v - 38.0) / 2.0).collect();
+    let narrow: Vec<f64> = wide.iter().map(|v| 38.0 + (v - 38.0) / 5.0).collect();
     let (held, out) = verify(run, &env, &narrow);
     assert_eq!(reasons(&out), vec!["Satisfied", "<save>"]);
     assert_eq!(name(&held.state), "Monitor");
+}
+
+/// A verification is held to a tolerance bound (k = 3.79 from ten windows),
+/// a trial to 2.33·sd: windows of 36.5 and 38.5 Hz (mean 37.5, sd 1.05) are
+/// a feasible trial (bound 35.04) but not a verified config (bound 33.5).
+#[test]
+fn a_verification_needs_a_wider_margin_than_a_trial() {
+    let (st, sp) = (stack(), spec(1.0, 5));
+    let env = env(&st, &sp);
+    let mut run = with_two_trials(&env);
+    let mut out = Vec::new();
+    run.state = finish(&mut run, &env, &env.defs(), &mut out);
+    let windows: Vec<f64> = (0..10)
+        .map(|i| if i % 2 == 0 { 36.5 } else { 38.5 })
+        .collect();
+    let Input::Measured(r) = report(&windows, 9.0) else {
+        panic!("a report")
+    };
+    let eval = measure::evaluate(&env.defs(), &r, Default::default());
+    assert!(eval.feasible, "as a trial: {eval:?}");
+    let (_, out) = verify(run, &env, &windows);
+    assert_eq!(reasons(&out), vec!["VerificationFailed", "BackingOff"]);
 }
 
 #[test]
@@ -173,7 +196,9 @@ fn a_best_trial_failing_verification_is_backed_off_before_the_next_best() {
         run = r;
         assert_eq!(reasons(&out), vec!["VerificationFailed", "BackingOff"]);
         let State::VerifyApply {
-            candidate: Candidate::Backoff { index: 1, fraction },
+            candidate: Candidate::Backoff {
+                index: 1, fraction, ..
+            },
             config,
         } = &run.state
         else {
@@ -707,4 +732,67 @@ fn a_run_that_saw_the_boundary_blur_verifies_longer() {
     });
     assert!(crate::machine::boundary_blurred(&run));
     assert_eq!(verify_ms(&run), 30_000, "six 5 s trials");
+}
+
+/// The next back-off fraction is where the line from the restrictive corner
+/// to the failed verification crosses the target, kept within 0.4–0.8 of
+/// the last fraction; without a corner (or when every bound held), 0.8.
+#[test]
+fn a_back_off_aims_where_the_line_from_the_corner_crosses_the_target() {
+    use crate::outcome::next_fraction;
+    let rate = MetricDef::rate_at_least("fps", "core", "/fps", 25.0, true);
+    let mut latency = MetricDef::rate_at_least("lat", "core", "/lat", 100.0, true);
+    latency.at_least = false;
+    let objective = MetricDef::rate_at_least("det", "det", "/det", 3.0, false);
+    let defs = [rate, objective];
+    let near = |a: f64, b: f64| (a - b).abs() < 1e-9;
+    // No corner measured: a fixed step.
+    assert!(near(next_fraction(&defs, None, 1.0, &[24.0]), 0.8));
+    // Corner 28.5 (3.5 above), verification 24.0 at 1 (1 below): 3.5 / 4.5.
+    assert!(near(
+        next_fraction(&defs, Some(&[28.5]), 1.0, &[24.0]),
+        3.5 / 4.5
+    ));
+    // Far below (17.5): the secant says 0.32 of the way, kept at 0.4.
+    assert!(near(next_fraction(&defs, Some(&[28.5]), 1.0, &[17.5]), 0.4));
+    // Just below at 0.5: the secant says 0.49, kept at 0.8 × 0.5.
+    assert!(near(
+        next_fraction(&defs, Some(&[28.5]), 0.5, &[24.95]),
+        0.4
+    ));
+    // The bound held (the windows missed): a fixed step.
+    assert!(near(next_fraction(&defs, Some(&[28.5]), 0.5, &[25.5]), 0.4));
+    // Two constraints, one at most: the first to reach its target decides.
+    let both = [defs[0].clone(), latency];
+    let f = next_fraction(&both, Some(&[28.5, 80.0]), 1.0, &[24.0, 120.0]);
+    assert!(near(f, 0.5), "{f}");
+}
+
+/// With a measured corner the back-off aims at the target; after
+/// [`BACKOFF_STEPS`] the next best trial is verified as measured.
+#[test]
+fn a_back_off_from_a_measured_corner_takes_the_secant_step() {
+    let (st, sp) = (stack(), spec(1.0, 5));
+    let env = env(&st, &sp);
+    let mut run = with_two_trials(&env);
+    run.corner_trial = Some(0);
+    let mut out = Vec::new();
+    run.state = finish(&mut run, &env, &env.defs(), &mut out);
+    let (run, out) = verify(run, &env, &BAD);
+    assert_eq!(reasons(&out), vec!["VerificationFailed", "BackingOff"]);
+    let State::VerifyApply {
+        candidate: Candidate::Backoff { fraction, step, .. },
+        ..
+    } = run.state
+    else {
+        panic!("{:?}", run.state)
+    };
+    let corner = run.trials[0].eval.constraints[0];
+    let Input::Measured(r) = report(&BAD, 9.0) else {
+        panic!("a report")
+    };
+    let bound = measure::verification_bounds(&env.defs(), &r)[0];
+    let want = ((corner - 35.0) / (corner - bound)).clamp(0.4, 0.8);
+    assert!((fraction - want).abs() < 1e-9, "{fraction} against {want}");
+    assert_eq!(step, 1);
 }
