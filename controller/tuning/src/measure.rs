@@ -36,40 +36,6 @@ use serde::{Deserialize, Serialize};
 
 /// One-sided 99 % normal quantile.
 const Z99: f64 = 2.33;
-/// What a verification certifies ([`verification_bounds`]): with
-/// [`VERIFY_CONFIDENCE`], at least [`VERIFY_COVERAGE`] of the config's
-/// windows meet each core target, by a one-sided normal tolerance bound
-/// `mean ∓ k(n)·sd` over its n windows. A trial's 2.33·sd explores; a
-/// verification hands the config to monitoring for good, and its mean and sd
-/// come from few windows: k is 3.16 from 30 windows, 3.79 from 10 (2.58 if
-/// they were known). Measured on the real nodelet stack: configs that passed
-/// 30-window verifications with 2.33 and then with 2.58 (k without the
-/// estimate's uncertainty) still missed one or more of the next minute's 60
-/// windows.
-pub const VERIFY_COVERAGE: f64 = 0.995;
-pub const VERIFY_CONFIDENCE: f64 = 0.9;
-/// Normal quantiles of [`VERIFY_COVERAGE`] and [`VERIFY_CONFIDENCE`].
-const Z_COVERAGE: f64 = 2.5758;
-const Z_CONFIDENCE: f64 = 1.2816;
-
-/// The one-sided normal tolerance factor k(n) (pure, Natrella's
-/// approximation): `mean − k·sd` of n samples is below the
-/// [`VERIFY_COVERAGE`] quantile's complement with [`VERIFY_CONFIDENCE`].
-/// Infinite below two samples (no spread to judge by).
-pub fn tolerance_factor(n: usize) -> f64 {
-    if n < 2 {
-        return f64::INFINITY;
-    }
-    #[allow(clippy::cast_precision_loss)]
-    let n = n as f64;
-    let (zp, zg) = (Z_COVERAGE, Z_CONFIDENCE);
-    let a = 1.0 - zg * zg / (2.0 * (n - 1.0));
-    let b = zp * zp - zg * zg / n;
-    if a <= 0.0 {
-        return f64::INFINITY;
-    }
-    (zp + (zp * zp - a * b).max(0.0).sqrt()) / a
-}
 /// How many 1 s windows a measurement near the boundary is extended to: ten
 /// windows estimate the spread well enough for the bound to tell (see
 /// [`near_boundary`]).
@@ -258,31 +224,12 @@ fn mean_sd(v: &[f64]) -> (f64, f64) {
 /// The constraint value the optimizer sees (see the module docs): the
 /// normal bound `mean ∓ 2.33·sd` of the sub-window values.
 pub fn robust_value(def: &MetricDef, values: &[f64]) -> f64 {
-    bound(def, values, Z99)
-}
-
-/// The normal bound `mean ∓ z·sd` of the sub-window values.
-fn bound(def: &MetricDef, values: &[f64], z: f64) -> f64 {
     let (mean, sd) = mean_sd(values);
     if def.at_least {
-        mean - z * sd
+        mean - Z99 * sd
     } else {
-        mean + z * sd
+        mean + Z99 * sd
     }
-}
-
-/// Each core constraint's tolerance bound over a verification (pure), in
-/// metric order: `mean ∓ k(n)·sd` ([`tolerance_factor`]); the value itself
-/// from a single window, 0 without values.
-pub fn verification_bounds(defs: &[MetricDef], report: &MeasureReport) -> Vec<f64> {
-    defs.iter()
-        .filter(|d| d.core)
-        .map(|d| match series(report, &d.probe) {
-            Some([v]) => *v,
-            Some(v) if !v.is_empty() => bound(d, v, tolerance_factor(v.len())),
-            _ => 0.0,
-        })
-        .collect()
 }
 
 /// Whether a measurement that is not feasible is near the boundary, so
@@ -464,14 +411,6 @@ mod tests {
                 })
                 .collect(),
         }
-    }
-
-    #[test]
-    fn tolerance_factors_shrink_toward_the_quantile_with_more_windows() {
-        let k = |n| (tolerance_factor(n) * 100.0).round() / 100.0;
-        assert_eq!((k(10), k(30), k(60)), (3.79, 3.16, 2.96));
-        assert!(tolerance_factor(100_000) > 2.575 && tolerance_factor(100_000) < 2.59);
-        assert!(tolerance_factor(1).is_infinite());
     }
 
     #[test]

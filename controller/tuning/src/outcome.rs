@@ -176,7 +176,7 @@ pub fn unsat_reason(run: &Run, defs: &[MetricDef]) -> (ResourceConfig, String) {
 
 /// After the best trial (`index`) failed verification at `fraction` (1 =
 /// as measured; `step` back-offs so far, with `bounds` its core constraints'
-/// verification bounds): verify it again with its non-core knobs lower (see
+/// bounds, [`measure::robust_value`]): verify it again with its non-core knobs lower (see
 /// [`next_fraction`]), for a margin from the core constraint's edge (the
 /// trial's short window may have caught a lucky moment, or a config whose
 /// non-core node only keeps up from an empty backlog). Only the first
@@ -374,21 +374,19 @@ pub fn after_tip(
 }
 
 /// Why a verification failed, for its event: too few windows held, or they
-/// held but their spread predicts misses (`bounds`, from
-/// [`measure::verification_bounds`]).
-pub fn shortfall(defs: &[MetricDef], eval: &measure::Evaluation, bounds: &[f64]) -> String {
+/// held but their spread predicts misses (the bound of [`measure::robust_value`]).
+pub fn shortfall(defs: &[MetricDef], eval: &measure::Evaluation) -> String {
     let held = format!("{:.1} % of the windows", eval.satisfaction * 100.0);
     if eval.satisfaction < SATISFIED {
         return format!("held in only {held}");
     }
     let core = defs.iter().filter(|d| d.core);
-    match core.zip(bounds).find(|(d, v)| !d.holds(**v)) {
+    match core.zip(&eval.constraints).find(|(d, v)| !d.holds(**v)) {
         Some((d, v)) => format!(
-            "held in {held}, but their spread predicts misses: the tolerance bound of {} ({:.1} % of windows, {:.0} % confidence) is {:.1}, target {}",
+            "held in {held}, but their spread predicts misses: {} of {:.1} by mean {} 2.33·sd, target {}",
             d.name,
-            measure::VERIFY_COVERAGE * 100.0,
-            measure::VERIFY_CONFIDENCE * 100.0,
             v,
+            if d.at_least { "−" } else { "+" },
             d.target_text()
         ),
         None => format!("held in {held}"),
@@ -397,8 +395,7 @@ pub fn shortfall(defs: &[MetricDef], eval: &measure::Evaluation, bounds: &[f64])
 
 /// A verification measured: monitor the candidate, or try the next one.
 /// It holds when ≥ [`SATISFIED`] of its windows held and every core
-/// constraint's tolerance bound holds over them (stricter than a trial's
-/// 2.33·sd: see [`measure::VERIFY_COVERAGE`]).
+/// constraint's bound holds over them (the same rule as a trial's).
 #[allow(clippy::too_many_arguments)]
 pub fn verified(
     run: &mut Run,
@@ -411,13 +408,7 @@ pub fn verified(
 ) -> State {
     let eval = measure::evaluate(defs, r, env.spec.tuning.scalarization);
     let sat = eval.satisfaction;
-    let bounds = measure::verification_bounds(defs, r);
-    let certified = defs
-        .iter()
-        .filter(|d| d.core)
-        .zip(&bounds)
-        .all(|(d, v)| d.holds(*v));
-    if sat >= SATISFIED && eval.feasible && certified {
+    if sat >= SATISFIED && eval.feasible {
         out.push(normal(
             Reason::Satisfied,
             format!(
@@ -468,7 +459,7 @@ pub fn verified(
         Candidate::Trial { index } => {
             out.push(warning(
                 Reason::VerificationFailed,
-                format!("trial {index} {}", shortfall(defs, &eval, &bounds)),
+                format!("trial {index} {}", shortfall(defs, &eval)),
             ));
             run.rejected.push(index);
             match run.tipped.take() {
@@ -477,7 +468,7 @@ pub fn verified(
                     trigger: t,
                     skip_library: true,
                 },
-                None => back_off(run, env, defs, index, 1.0, 0, &bounds, out),
+                None => back_off(run, env, defs, index, 1.0, 0, &eval.constraints, out),
             }
         }
         Candidate::Backoff {
@@ -490,10 +481,19 @@ pub fn verified(
                 format!(
                     "trial {index} backed off to {:.0} % {}",
                     fraction * 100.0,
-                    shortfall(defs, &eval, &bounds)
+                    shortfall(defs, &eval)
                 ),
             ));
-            back_off(run, env, defs, index, fraction, step, &bounds, out)
+            back_off(
+                run,
+                env,
+                defs,
+                index,
+                fraction,
+                step,
+                &eval.constraints,
+                out,
+            )
         }
         Candidate::Baseline => {
             if env.tuning_allowed {
