@@ -356,6 +356,11 @@ pub struct Run {
 }
 
 impl Run {
+    /// The restrictive-corner trial, once measured.
+    pub fn corner(&self) -> Option<&TrialRecord> {
+        self.corner_trial.and_then(|i| self.trials.get(i))
+    }
+
     /// The run that follows `old` when the spec changes: a fresh run from the
     /// config on the robot, except that apps a remediation paused are resumed
     /// first; the new run knows nothing of them and would leave them paused

@@ -78,10 +78,15 @@ impl MetricDef {
 
     /// Whether one value meets the target.
     pub fn holds(&self, v: f64) -> bool {
+        self.margin(v) >= 0.0
+    }
+
+    /// How far `v` is on the holding side of the target (negative: it misses).
+    pub fn margin(&self, v: f64) -> f64 {
         if self.at_least {
-            v >= self.target
+            v - self.target
         } else {
-            v <= self.target
+            self.target - v
         }
     }
 

@@ -194,8 +194,7 @@ fn back_off(
     out: &mut Vec<Output>,
 ) -> State {
     let corner = run
-        .corner_trial
-        .and_then(|i| run.trials.get(i))
+        .corner()
         .filter(|c| c.feasible())
         .map(|c| c.eval.constraints.as_slice());
     let next = next_fraction(defs, corner, fraction, bounds);
@@ -236,19 +235,12 @@ pub fn next_fraction(defs: &[MetricDef], corner: Option<&[f64]>, f: f64, bounds:
     let Some(corner) = corner else {
         return slowest;
     };
-    let margin = |d: &MetricDef, v: f64| {
-        if d.at_least {
-            v - d.target
-        } else {
-            d.target - v
-        }
-    };
     let core = defs.iter().filter(|d| d.core);
     let crossing = core
         .zip(corner)
         .zip(bounds)
         .filter_map(|((d, &c), &b)| {
-            let (at_corner, here) = (margin(d, c), margin(d, b));
+            let (at_corner, here) = (d.margin(c), d.margin(b));
             (at_corner > 0.0 && here < 0.0).then(|| f * at_corner / (at_corner - here))
         })
         .fold(slowest, f64::min);

@@ -302,8 +302,7 @@ pub(crate) fn record_trial(
 /// Whether the run's restrictive-corner trial mostly held (at least
 /// [`measure::NEAR_SHARE`] of its windows): then it is no evidence of Unsat.
 fn corner_near_boundary(run: &Run) -> bool {
-    run.corner_trial
-        .and_then(|i| run.trials.get(i))
+    run.corner()
         .is_some_and(|c| c.eval.satisfaction >= measure::NEAR_SHARE)
 }
 

@@ -181,6 +181,16 @@ fn observed(known: bool) -> Input {
     }
 }
 
+/// The graph check's context change from "a" to "b", with these nodes joined.
+fn context_changed(joined: &[&str]) -> Input {
+    Input::Trigger(Trigger::ContextChanged {
+        from: "a".into(),
+        to: "b".into(),
+        by: "graph check".into(),
+        joined: joined.iter().map(|n| n.to_string()).collect(),
+    })
+}
+
 const OK: [f64; 5] = [40.0; 5];
 const BAD: [f64; 5] = [20.0; 5];
 
@@ -479,12 +489,7 @@ fn transition_table() {
                 satisfied: true,
                 config: cfg(),
             },
-            Input::Trigger(Trigger::ContextChanged {
-                from: "a".into(),
-                to: "b".into(),
-                by: "graph check".into(),
-                joined: vec![],
-            }),
+            context_changed(&[]),
             false,
             true,
             "Observe",
@@ -493,12 +498,7 @@ fn transition_table() {
         (
             "context change during a trial: start over",
             trial(None),
-            Input::Trigger(Trigger::ContextChanged {
-                from: "a".into(),
-                to: "b".into(),
-                by: "graph check".into(),
-                joined: vec!["/det".into()],
-            }),
+            context_changed(&["/det"]),
             false,
             true,
             "StartUp",
@@ -507,12 +507,7 @@ fn transition_table() {
         (
             "nodes only left during a trial: start over without the start-up wait",
             trial(None),
-            Input::Trigger(Trigger::ContextChanged {
-                from: "a".into(),
-                to: "b".into(),
-                by: "graph check".into(),
-                joined: vec![],
-            }),
+            context_changed(&[]),
             false,
             true,
             "Observe",
@@ -524,12 +519,7 @@ fn transition_table() {
                 candidate: Candidate::Trial { index: 0 },
                 config: cfg(),
             },
-            Input::Trigger(Trigger::ContextChanged {
-                from: "a".into(),
-                to: "b".into(),
-                by: "graph check".into(),
-                joined: vec!["/det".into()],
-            }),
+            context_changed(&["/det"]),
             false,
             true,
             "StartUp",
