@@ -207,7 +207,8 @@ vocabulary! {
         VerificationFailed,
         /// A rejected best trial is verified again with its knobs backed off.
         BackingOff,
-        /// A held config tipped; the next best trial is verified.
+        /// A held config tipped, or a measured trial promises more than a
+        /// back-off; the next best trial is verified.
         VerifyingNextBest,
         /// The inputs of paused apps are being recorded.
         RecordingInputs,

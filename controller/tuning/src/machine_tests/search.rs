@@ -70,7 +70,8 @@ fn best_failing_verification_tries_the_next_best_then_unsat() {
 }
 
 /// A run whose knobs are /detector's CPU (non-core, 0.1..2) and /planner's
-/// (core), with trials 0 and 1 feasible (objective 0.8 and 0.9 of `det`).
+/// (core), with trials 0 and 1 feasible (objective 0.4 and 0.9 of `det`:
+/// every back-off of trial 1 promises more than trial 0).
 fn with_two_trials(env: &Env<'_>) -> Run {
     let knob = |node: &str, restricts_non_core| knobs::KnobDef {
         name: knobs::cpu_knob_name(node),
@@ -88,7 +89,7 @@ fn with_two_trials(env: &Env<'_>) -> Run {
         period_micros: 20_000,
         ..KnobSpace::default()
     };
-    for (x, det) in [([1.0, 1.5], 8.0), ([1.9, 1.5], 9.0)] {
+    for (x, det) in [([1.0, 1.5], 4.0), ([1.9, 1.5], 9.0)] {
         push_trial(&mut run, env, &x, det);
     }
     run
@@ -106,6 +107,17 @@ fn push_trial(run: &mut Run, env: &Env<'_>, x: &[f64], det: f64) {
         eval: measure::evaluate(&env.defs(), &r, Default::default()),
         censored: false,
     });
+}
+
+/// The run's next step applies trial `index`'s config, as measured, to verify it.
+fn assert_verifies_trial_as_measured(run: &Run, index: usize) {
+    assert_eq!(
+        run.state,
+        State::VerifyApply {
+            candidate: Candidate::Trial { index },
+            config: run.trials[index].config.clone()
+        }
+    );
 }
 
 /// Verify the run's current candidate: apply, settle, measure `cmd`.
@@ -159,13 +171,7 @@ fn a_best_trial_failing_verification_is_backed_off_before_the_next_best() {
     let mut run = with_two_trials(&env);
     let mut out = Vec::new();
     run.state = finish(&mut run, &env, &env.defs(), &mut out);
-    assert_eq!(
-        run.state,
-        State::VerifyApply {
-            candidate: Candidate::Trial { index: 1 },
-            config: run.trials[1].config.clone()
-        }
-    );
+    assert_verifies_trial_as_measured(&run, 1);
     // Three back-off steps of /detector's CPU, /planner's kept: 0.1 + f × 1.8.
     let mut fractions = Vec::new();
     for _ in 0..3 {
@@ -196,13 +202,7 @@ fn a_best_trial_failing_verification_is_backed_off_before_the_next_best() {
     // The last step failed too: the next best trial, as measured, and no back-off for it.
     let (run, out) = verify(run, &env, &BAD);
     assert_eq!(reasons(&out), vec!["VerificationFailed"]);
-    assert_eq!(
-        run.state,
-        State::VerifyApply {
-            candidate: Candidate::Trial { index: 0 },
-            config: run.trials[0].config.clone()
-        }
-    );
+    assert_verifies_trial_as_measured(&run, 0);
     assert_eq!(run.rejected, vec![1]);
     let (run, out) = verify(run, &env, &BAD);
     assert_eq!(reasons(&out), vec!["VerificationFailed", "Unsat"]);
@@ -453,13 +453,7 @@ fn a_held_config_that_tips_verifies_the_next_best_before_relearning_cold() {
         reasons(&out),
         vec!["ConstraintViolated", "VerifyingNextBest"]
     );
-    assert_eq!(
-        tipped.state,
-        State::VerifyApply {
-            candidate: Candidate::Trial { index: 0 },
-            config: tipped.trials[0].config.clone()
-        }
-    );
+    assert_verifies_trial_as_measured(&tipped, 0);
     assert_eq!(tipped.rejected, vec![1]);
     assert_eq!(tipped.trials.len(), 2, "the run's trials are kept");
 
@@ -575,13 +569,7 @@ fn a_run_whose_objectives_are_all_capped_stops_early_and_verifies() {
     let (run, out) = baseline_then_first_trial(&env, &BAD, report(&OK, 10.0));
     assert_eq!(reasons(&out), vec!["Trial", "ObjectivesCapped"]);
     assert_eq!(run.trials.len(), 1, "one trial of 20");
-    assert_eq!(
-        run.state,
-        State::VerifyApply {
-            candidate: Candidate::Trial { index: 0 },
-            config: run.trials[0].config.clone()
-        }
-    );
+    assert_verifies_trial_as_measured(&run, 0);
 }
 
 #[test]
@@ -772,4 +760,42 @@ fn a_back_off_from_a_measured_corner_takes_the_secant_step() {
     let want = ((corner - 35.0) / (corner - bound)).clamp(0.4, 0.8);
     assert!((fraction - want).abs() < 1e-9, "{fraction} against {want}");
     assert_eq!(step, 1);
+}
+
+/// A back-off promises the line from the corner's objective to the pick's
+/// (0 without a measured corner); a trial that measured at least that much
+/// is verified instead, as measured.
+#[test]
+fn a_trial_that_measured_more_than_a_back_off_promises_is_verified_instead() {
+    use crate::outcome::backoff_promise;
+    let near = |a: f64, b: f64| (a - b).abs() < 1e-9;
+    assert!(near(backoff_promise(None, 0.9, 0.8), 0.72));
+    assert!(near(backoff_promise(Some(0.04), 1.0, 0.63), 0.6448));
+    assert!(
+        near(backoff_promise(Some(0.5), 0.3, 0.5), 0.3),
+        "never above the pick"
+    );
+    let (st, sp) = (stack(), spec(1.0, 5));
+    let env = env(&st, &sp);
+    let mut run = with_two_trials(&env);
+    // Trial 0 measured 0.8 at less CPU: more than trial 1 backed off to 80 % (0.72).
+    run.trials.clear();
+    for (x, det) in [([1.0, 1.5], 8.0), ([1.9, 1.5], 9.0)] {
+        push_trial(&mut run, &env, &x, det);
+    }
+    let mut out = Vec::new();
+    run.state = finish(&mut run, &env, &env.defs(), &mut out);
+    let (run, out) = verify(run, &env, &BAD);
+    assert_eq!(
+        reasons(&out),
+        vec!["VerificationFailed", "VerifyingNextBest"]
+    );
+    assert_verifies_trial_as_measured(&run, 0);
+    let Output::Event { message, .. } = &out[1] else {
+        panic!("{out:?}")
+    };
+    assert!(
+        message.contains("trial 0 measured objective 0.800, no less than trial 1 backed off to 80 % promises (0.720)"),
+        "{message}"
+    );
 }
