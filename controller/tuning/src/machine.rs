@@ -353,6 +353,12 @@ pub struct Run {
     /// misses too, no config can meet it (see [`super::search`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub corner_trial: Option<usize>,
+    /// The first rejected trial's next back-off (a [`Candidate::Backoff`]),
+    /// set aside for a measured trial that promised at least as much (see
+    /// [`outcome::backoff_promise`]): tried if that trial fails too and it
+    /// still promises more than what is left.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub deferred_backoff: Option<Candidate>,
 }
 
 impl Run {
@@ -397,6 +403,7 @@ impl Run {
             tipped: None,
             tip_retried: false,
             corner_trial: None,
+            deferred_backoff: None,
         }
     }
 

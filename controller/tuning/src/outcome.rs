@@ -182,8 +182,9 @@ pub fn unsat_reason(run: &Run, defs: &[MetricDef]) -> (ResourceConfig, String) {
 /// non-core node only keeps up from an empty backlog). Only the first
 /// rejected trial backs off, at most [`BACKOFF_STEPS`] times and not below
 /// [`BACKOFF_MIN`], and only while the back-off promises more than the next
-/// best trial measured ([`backoff_promise`]); then the next best trial is
-/// verified as measured.
+/// best trial measured ([`backoff_promise`]); otherwise that trial is
+/// verified as measured and the back-off set aside, to be taken up again
+/// when that trial fails too (`Run::deferred_backoff`).
 #[allow(clippy::too_many_arguments)]
 fn back_off(
     run: &mut Run,
@@ -195,53 +196,71 @@ fn back_off(
     bounds: &[f64],
     out: &mut Vec<Output>,
 ) -> State {
-    let corner = run
-        .corner()
-        .filter(|c| c.feasible())
-        .map(|c| c.eval.constraints.as_slice());
-    let next = next_fraction(defs, corner, fraction, bounds);
-    let first = run.rejected.first() == Some(&index);
-    let point = run.trials.get(index).map(|t| t.x.clone());
-    if let (true, true, true, Some(x)) = (first, step < BACKOFF_STEPS, next >= BACKOFF_MIN, point)
-        && let Some(y) = run.knobs.backed_off(&x, next)
+    let planned = if run.rejected.first() == Some(&index) {
+        let corner = run
+            .corner()
+            .filter(|c| c.feasible())
+            .map(|c| c.eval.constraints.as_slice());
+        let next = next_fraction(defs, corner, fraction, bounds);
+        (step < BACKOFF_STEPS && next >= BACKOFF_MIN).then_some(Candidate::Backoff {
+            index,
+            fraction: next,
+            step: step + 1,
+        })
+    } else {
+        run.deferred_backoff.take()
+    };
+    let Some(Candidate::Backoff {
+        index: pick,
+        fraction: next,
+        step: next_step,
+    }) = planned
+    else {
+        return finish(run, env, defs, out);
+    };
+    let Some(y) = run
+        .trials
+        .get(pick)
+        .and_then(|t| run.knobs.backed_off(&t.x, next))
+    else {
+        return finish(run, env, defs, out);
+    };
+    let objective = |t: &TrialRecord| t.eval.objective.unwrap_or(0.0);
+    let promise = backoff_promise(
+        run.corner().filter(|c| c.feasible()).map(objective),
+        objective(&run.trials[pick]),
+        next,
+    );
+    if let Some(alt) = super::search::best_trial(run)
+        && objective(&run.trials[alt]) >= promise
     {
-        let objective = |t: &TrialRecord| t.eval.objective.unwrap_or(0.0);
-        let promise = backoff_promise(
-            run.corner().filter(|c| c.feasible()).map(objective),
-            objective(&run.trials[index]),
-            next,
-        );
-        if let Some(alt) = super::search::best_trial(run)
-            && objective(&run.trials[alt]) >= promise
-        {
-            out.push(normal(
-                Reason::VerifyingNextBest,
-                format!(
-                    "trial {alt} measured objective {:.3}, no less than trial {index} backed off to {:.0} % promises ({promise:.3}): verifying trial {alt} instead",
-                    objective(&run.trials[alt]),
-                    next * 100.0
-                ),
-            ));
-            return finish(run, env, defs, out);
-        }
         out.push(normal(
-            Reason::BackingOff,
+            Reason::VerifyingNextBest,
             format!(
-                "verifying trial {index} with its non-core knobs at {:.0} % of the way from their minimum, for a margin from the core constraints",
+                "trial {alt} measured objective {:.3}, no less than trial {pick} backed off to {:.0} % promises ({promise:.3}): verifying trial {alt} instead",
+                objective(&run.trials[alt]),
                 next * 100.0
             ),
         ));
-        let verify = State::VerifyApply {
-            candidate: Candidate::Backoff {
-                index,
-                fraction: next,
-                step: step + 1,
-            },
-            config: run.knobs.to_config(&y),
-        };
-        return drain_first(run, env, verify);
+        run.deferred_backoff = planned;
+        return finish(run, env, defs, out);
     }
-    finish(run, env, defs, out)
+    out.push(normal(
+        Reason::BackingOff,
+        format!(
+            "verifying trial {pick} with its non-core knobs at {:.0} % of the way from their minimum, for a margin from the core constraints",
+            next * 100.0
+        ),
+    ));
+    let verify = State::VerifyApply {
+        candidate: Candidate::Backoff {
+            index: pick,
+            fraction: next,
+            step: next_step,
+        },
+        config: run.knobs.to_config(&y),
+    };
+    drain_first(run, env, verify)
 }
 
 /// The objective a back-off to fraction `f` of the way from the restrictive

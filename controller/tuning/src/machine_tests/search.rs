@@ -764,7 +764,8 @@ fn a_back_off_from_a_measured_corner_takes_the_secant_step() {
 
 /// A back-off promises the line from the corner's objective to the pick's
 /// (0 without a measured corner); a trial that measured at least that much
-/// is verified instead, as measured.
+/// is verified instead, as measured, and the back-off is taken up again if
+/// that trial fails too.
 #[test]
 fn a_trial_that_measured_more_than_a_back_off_promises_is_verified_instead() {
     use crate::outcome::backoff_promise;
@@ -798,4 +799,21 @@ fn a_trial_that_measured_more_than_a_back_off_promises_is_verified_instead() {
         message.contains("trial 0 measured objective 0.800, no less than trial 1 backed off to 80 % promises (0.720)"),
         "{message}"
     );
+    // Trial 0 fails too: the back-off set aside is taken up, not an Unsat.
+    let (run, out) = verify(run, &env, &BAD);
+    assert_eq!(reasons(&out), vec!["VerificationFailed", "BackingOff"]);
+    let State::VerifyApply {
+        candidate:
+            Candidate::Backoff {
+                index: 1,
+                fraction,
+                step: 1,
+            },
+        ..
+    } = run.state
+    else {
+        panic!("{:?}", run.state)
+    };
+    assert!(near(fraction, 0.8), "{fraction}");
+    assert_eq!(run.deferred_backoff, None);
 }
