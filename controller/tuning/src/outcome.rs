@@ -210,11 +210,13 @@ fn back_off(
     } else {
         run.deferred_backoff.take()
     };
-    let Some(Candidate::Backoff {
-        index: pick,
-        fraction: next,
-        step: next_step,
-    }) = planned
+    let Some(
+        backoff @ Candidate::Backoff {
+            index: pick,
+            fraction: next,
+            ..
+        },
+    ) = planned
     else {
         return finish(run, env, defs, out);
     };
@@ -242,7 +244,7 @@ fn back_off(
                 next * 100.0
             ),
         ));
-        run.deferred_backoff = planned;
+        run.deferred_backoff = Some(backoff);
         return finish(run, env, defs, out);
     }
     out.push(normal(
@@ -253,11 +255,7 @@ fn back_off(
         ),
     ));
     let verify = State::VerifyApply {
-        candidate: Candidate::Backoff {
-            index: pick,
-            fraction: next,
-            step: next_step,
-        },
+        candidate: backoff,
         config: run.knobs.to_config(&y),
     };
     drain_first(run, env, verify)
