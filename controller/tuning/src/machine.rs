@@ -313,6 +313,33 @@ impl TrialRecord {
     }
 }
 
+/// What a failed verification taught about the margin a config needs: a
+/// trial is verified (as measured) only when its bound of core constraint
+/// `constraint` is beyond `beyond`, on the holding side (see
+/// [`outcome::edges_after`]). Trials at or inside an edge sit as close to
+/// the core target as the one that failed.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Edge {
+    /// Index among the core constraints (the order of `Evaluation::constraints`).
+    pub constraint: usize,
+    pub beyond: f64,
+    /// The target is a lower bound (a rate), so beyond means above.
+    pub at_least: bool,
+}
+
+impl Edge {
+    /// Whether trial `t`'s bound of this edge's constraint is beyond it.
+    pub fn cleared_by(&self, t: &TrialRecord) -> bool {
+        t.eval.constraints.get(self.constraint).is_some_and(|&v| {
+            if self.at_least {
+                v > self.beyond
+            } else {
+                v < self.beyond
+            }
+        })
+    }
+}
+
 /// The whole persisted run.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct Run {
@@ -359,6 +386,11 @@ pub struct Run {
     /// still promises more than what is left.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub deferred_backoff: Option<Candidate>,
+    /// Edges learned from this run's failed verifications: trials that clear
+    /// them all are verified before any that do not (see
+    /// [`super::search::best_clear_trial`]).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub edges: Vec<Edge>,
 }
 
 impl Run {
@@ -404,6 +436,7 @@ impl Run {
             tip_retried: false,
             corner_trial: None,
             deferred_backoff: None,
+            edges: Vec::new(),
         }
     }
 

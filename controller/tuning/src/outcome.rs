@@ -15,8 +15,8 @@ use configbot_optimizer::Observation;
 use super::knobs::KnobSpace;
 use super::library;
 use super::machine::{
-    BACKOFF_FASTEST, BACKOFF_MIN, BACKOFF_STEP, BACKOFF_STEPS, Candidate, Env, Output, Remedy, Run,
-    SATISFIED, State, TrialRecord, drain_first, finish, normal, warning,
+    BACKOFF_FASTEST, BACKOFF_MIN, BACKOFF_STEP, BACKOFF_STEPS, Candidate, Edge, Env, Output,
+    Remedy, Run, SATISFIED, State, TrialRecord, drain_first, finish, normal, warning,
 };
 use super::measure::{self, MetricDef};
 use super::monitor::{ConstraintMonitor, Trigger};
@@ -182,7 +182,8 @@ pub fn unsat_reason(run: &Run, defs: &[MetricDef]) -> (ResourceConfig, String) {
 /// non-core node only keeps up from an empty backlog). Only the first
 /// rejected trial backs off, at most [`BACKOFF_STEPS`] times and not below
 /// [`BACKOFF_MIN`], and only while the back-off promises more than the next
-/// best trial measured ([`backoff_promise`]); otherwise that trial is
+/// best trial beyond the failed verifications' edges measured
+/// ([`backoff_promise`], [`edges_after`]); otherwise that trial is
 /// verified as measured and the back-off set aside, to be taken up again
 /// when that trial fails too (`Run::deferred_backoff`).
 #[allow(clippy::too_many_arguments)]
@@ -233,7 +234,7 @@ fn back_off(
         objective(&run.trials[pick]),
         next,
     );
-    if let Some(alt) = super::search::best_trial(run)
+    if let Some(alt) = super::search::best_clear_trial(run)
         && objective(&run.trials[alt]) >= promise
     {
         out.push(normal(
@@ -296,6 +297,67 @@ pub fn next_fraction(defs: &[MetricDef], corner: Option<&[f64]>, f: f64, bounds:
         })
         .fold(slowest, f64::min);
     crossing.max(f * BACKOFF_FASTEST)
+}
+
+/// The edges a failed verification of a trial leaves (pure), from the
+/// trial's core bounds `trial` and the verification's `verify`
+/// ([`measure::robust_value`]): for each core constraint whose bound failed
+/// in the verification (or, when only windows missed, the one nearest its
+/// target relative to it), the trial's bound moved out by what the
+/// verification fell short of the target. A trial verifies at about its
+/// own bound less what the failed one lost between its trial and its
+/// verification, so only one beyond that edge can be expected to hold.
+/// Measured on real-nodelets (2026-11-24): after a pick failed, four trials
+/// with bounds 25.25–25.65 Hz (target 25) were verified in turn, each
+/// missing a window, before one at 25.9 Hz held.
+pub fn edges_after(defs: &[MetricDef], trial: &[f64], verify: &[f64]) -> Vec<Edge> {
+    let core: Vec<(usize, &MetricDef, f64, f64)> = defs
+        .iter()
+        .filter(|d| d.core)
+        .zip(trial.iter().zip(verify))
+        .enumerate()
+        .map(|(j, (d, (&t, &v)))| (j, d, t, v))
+        .collect();
+    let failed: Vec<_> = core.iter().filter(|(_, d, _, v)| !d.holds(*v)).collect();
+    let relative = |d: &MetricDef, v: f64| d.margin(v) / d.target.abs().max(f64::MIN_POSITIVE);
+    let chosen = if failed.is_empty() {
+        core.iter()
+            .min_by(|a, b| relative(a.1, a.3).total_cmp(&relative(b.1, b.3)))
+            .into_iter()
+            .collect()
+    } else {
+        failed
+    };
+    chosen
+        .into_iter()
+        .map(|&(j, d, t, v)| {
+            let short = (-d.margin(v)).max(0.0);
+            Edge {
+                constraint: j,
+                beyond: if d.at_least { t + short } else { t - short },
+                at_least: d.at_least,
+            }
+        })
+        .collect()
+}
+
+/// `edges` for an event: "cmd above 36.20".
+fn edges_text(defs: &[MetricDef], edges: &[Edge]) -> String {
+    let core: Vec<&MetricDef> = defs.iter().filter(|d| d.core).collect();
+    edges
+        .iter()
+        .filter_map(|e| {
+            core.get(e.constraint).map(|d| {
+                format!(
+                    "{} {} {:.2}",
+                    d.name,
+                    if e.at_least { "above" } else { "below" },
+                    e.beyond
+                )
+            })
+        })
+        .collect::<Vec<_>>()
+        .join(" and ")
 }
 
 pub fn list_or_none(apps: &[String]) -> String {
@@ -500,10 +562,27 @@ pub fn verified(
     }
     match candidate {
         Candidate::Trial { index } => {
+            let edges = run
+                .trials
+                .get(index)
+                .map(|t| edges_after(defs, &t.eval.constraints, &eval.constraints))
+                .unwrap_or_default();
             out.push(warning(
                 Reason::VerificationFailed,
-                format!("trial {index} {}", shortfall(defs, &eval)),
+                format!(
+                    "trial {index} {}{}",
+                    shortfall(defs, &eval),
+                    if edges.is_empty() {
+                        String::new()
+                    } else {
+                        format!(
+                            "; trials are verified as measured first when their bound is {}",
+                            edges_text(defs, &edges)
+                        )
+                    }
+                ),
             ));
+            run.edges.extend(edges);
             run.rejected.push(index);
             match run.tipped.take() {
                 // The next best after a tip failed too: the workload changed.

@@ -404,17 +404,32 @@ pub fn all_capped(t: &TrialRecord) -> bool {
 /// less moves a capped objective by about 0.07.
 pub const NEAR_BEST: f64 = 0.05;
 
-/// The trial to verify (pure): among the unrejected feasible trials whose
-/// objective is within [`NEAR_BEST`] of the best, the one that gives the
-/// non-core apps the least (see [`KnobSpace::non_core_share`]). Objectives are
-/// capped at their targets, so past the cap more input or CPU for a non-core
-/// app buys nothing and only brings the core constraints' edge closer.
+/// The trial to verify (pure): the best that clears every edge a failed
+/// verification left ([`best_clear_trial`]), else the best of the rest.
 pub fn best_trial(run: &Run) -> Option<usize> {
+    best_clear_trial(run).or_else(|| best_of(run, |_| true))
+}
+
+/// The best trial beyond every edge of `run.edges` (pure): after a failed
+/// verification, a trial whose bound is no further from the core target
+/// than the failed one's is no better bet, so a back-off of the failed
+/// trial is tried before it (see [`super::outcome::edges_after`]).
+pub fn best_clear_trial(run: &Run) -> Option<usize> {
+    best_of(run, |t| run.edges.iter().all(|e| e.cleared_by(t)))
+}
+
+/// Among the unrejected feasible trials that pass `eligible` and whose
+/// objective is within [`NEAR_BEST`] of their best, the one that gives the
+/// non-core apps the least (see [`KnobSpace::non_core_share`]). Objectives
+/// are capped at their targets, so past the cap more input or CPU for a
+/// non-core app buys nothing and only brings the core constraints' edge
+/// closer.
+fn best_of(run: &Run, eligible: impl Fn(&TrialRecord) -> bool) -> Option<usize> {
     let candidates: Vec<(usize, &TrialRecord)> = run
         .trials
         .iter()
         .enumerate()
-        .filter(|(i, t)| t.feasible() && !run.rejected.contains(i))
+        .filter(|(i, t)| t.feasible() && !run.rejected.contains(i) && eligible(t))
         .collect();
     let objective = |t: &TrialRecord| t.eval.objective.unwrap_or(0.0);
     let top = candidates

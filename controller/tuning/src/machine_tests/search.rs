@@ -98,7 +98,12 @@ fn with_two_trials(env: &Env<'_>) -> Run {
 /// Records a trial at `x` (a point of `run.knobs`) that met /cmd_vel and
 /// gave detection `det`.
 fn push_trial(run: &mut Run, env: &Env<'_>, x: &[f64], det: f64) {
-    let Input::Measured(r) = report(&OK, det) else {
+    push_trial_at(run, env, x, &OK, det);
+}
+
+/// Records a trial at `x` that measured /cmd_vel `cmd` and detection `det`.
+fn push_trial_at(run: &mut Run, env: &Env<'_>, x: &[f64], cmd: &[f64], det: f64) {
+    let Input::Measured(r) = report(cmd, det) else {
         unreachable!()
     };
     run.trials.push(TrialRecord {
@@ -779,11 +784,12 @@ fn a_trial_that_measured_more_than_a_back_off_promises_is_verified_instead() {
     let (st, sp) = (stack(), spec(1.0, 5));
     let env = env(&st, &sp);
     let mut run = with_two_trials(&env);
-    // Trial 0 measured 0.8 at less CPU: more than trial 1 backed off to 80 % (0.72).
+    // Trial 0 measured 0.8 at less CPU: more than trial 1 backed off to 80 %
+    // (0.72), and with /cmd_vel at 60 Hz, beyond the edge trial 1's failure
+    // leaves (its 40 Hz plus the 15 Hz its verification fell short).
     run.trials.clear();
-    for (x, det) in [([1.0, 1.5], 8.0), ([1.9, 1.5], 9.0)] {
-        push_trial(&mut run, &env, &x, det);
-    }
+    push_trial_at(&mut run, &env, &[1.0, 1.5], &[60.0; 5], 8.0);
+    push_trial(&mut run, &env, &[1.9, 1.5], 9.0);
     let mut out = Vec::new();
     run.state = finish(&mut run, &env, &env.defs(), &mut out);
     let (run, out) = verify(run, &env, &BAD);
@@ -816,4 +822,52 @@ fn a_trial_that_measured_more_than_a_back_off_promises_is_verified_instead() {
     };
     assert!(near(fraction, 0.8), "{fraction}");
     assert_eq!(run.deferred_backoff, None);
+}
+
+#[test]
+fn a_failed_verification_leaves_an_edge_that_a_trial_must_clear_to_be_verified_instead() {
+    use crate::outcome::edges_after;
+    let (st, sp) = (stack(), spec(1.0, 5));
+    let env = env(&st, &sp);
+    let defs = env.defs();
+    // Trial bound 36, verified at 33 against 35: out by the 2 Hz it fell short.
+    let edges = edges_after(&defs, &[36.0], &[33.0]);
+    assert_eq!(
+        edges,
+        vec![Edge {
+            constraint: 0,
+            beyond: 38.0,
+            at_least: true
+        }]
+    );
+    // Only windows missed (the bound held): the trial's own bound is the edge.
+    assert_eq!(edges_after(&defs, &[36.0], &[35.5])[0].beyond, 36.0);
+    // Trial 0 measured more than trial 1's back-off promises, but its
+    // /cmd_vel bound (40 Hz) is no further from the target than trial 1's,
+    // which failed: the back-off is verified, not trial 0.
+    let mut run = with_two_trials(&env);
+    run.trials.clear();
+    for (x, det) in [([1.0, 1.5], 8.0), ([1.9, 1.5], 9.0)] {
+        push_trial(&mut run, &env, &x, det);
+    }
+    let mut out = Vec::new();
+    run.state = finish(&mut run, &env, &defs, &mut out);
+    let (run, out) = verify(run, &env, &BAD);
+    assert_eq!(reasons(&out), vec!["VerificationFailed", "BackingOff"]);
+    let Output::Event { message, .. } = &out[0] else {
+        panic!("{out:?}")
+    };
+    assert!(
+        message
+            .contains("trials are verified as measured first when their bound is cmd above 55.00"),
+        "{message}"
+    );
+    assert_eq!(run.edges.len(), 1);
+    assert_eq!(run.deferred_backoff, None);
+    assert_eq!(search::best_clear_trial(&run), None);
+    assert_eq!(
+        search::best_trial(&run),
+        Some(0),
+        "still verified once the back-offs are spent"
+    );
 }
