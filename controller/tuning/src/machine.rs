@@ -132,19 +132,23 @@ impl Env<'_> {
 pub enum Candidate {
     /// A trial of this run (index into `Run::trials`).
     Trial { index: usize },
-    /// The trial `index`, which failed verification, with every knob that only
-    /// restricts a non-core app at `fraction` of the way from its minimum to
-    /// the trial's value (see [`KnobSpace::backed_off`]); `step` counts from 1.
-    Backoff {
-        index: usize,
-        fraction: f64,
-        #[serde(default)]
-        step: u32,
-    },
+    /// A trial that failed verification, backed off.
+    Backoff(Backoff),
     /// The baseline config (already good, or no knobs to tune).
     Baseline,
     /// A config from the library for this context.
     Library { profile: Box<ConfigProfile> },
+}
+
+/// The trial `index`, which failed verification, with every knob that only
+/// restricts a non-core app at `fraction` of the way from its minimum to the
+/// trial's value (see [`KnobSpace::backed_off`]); `step` counts from 1.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Backoff {
+    pub index: usize,
+    pub fraction: f64,
+    #[serde(default)]
+    pub step: u32,
 }
 
 /// Where the run is. Serialised as the persisted resume point.
@@ -380,12 +384,12 @@ pub struct Run {
     /// misses too, no config can meet it (see [`super::search`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub corner_trial: Option<usize>,
-    /// The first rejected trial's next back-off (a [`Candidate::Backoff`]),
-    /// set aside for a measured trial that promised at least as much (see
+    /// The first rejected trial's next back-off, set aside for a measured
+    /// trial that promised at least as much (see
     /// [`outcome::backoff_promise`]): tried if that trial fails too and it
     /// still promises more than what is left.
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub deferred_backoff: Option<Candidate>,
+    pub deferred_backoff: Option<Backoff>,
     /// Edges learned from this run's failed verifications: trials that clear
     /// them all are verified before any that do not (see
     /// [`super::search::best_clear_trial`]).
@@ -740,6 +744,8 @@ pub fn step(mut run: Run, input: Input, env: &Env<'_>) -> (Run, Vec<Output>) {
                     run.rejected.clear();
                     run.tip_retried = false;
                     run.corner_trial = None;
+                    run.deferred_backoff = None;
+                    run.edges.clear();
                     run.optimizer = None;
                     run.baseline = None;
                     // A violation of a config that held means the workload

@@ -15,8 +15,8 @@ use configbot_optimizer::Observation;
 use super::knobs::KnobSpace;
 use super::library;
 use super::machine::{
-    BACKOFF_FASTEST, BACKOFF_MIN, BACKOFF_STEP, BACKOFF_STEPS, Candidate, Edge, Env, Output,
-    Remedy, Run, SATISFIED, State, TrialRecord, drain_first, finish, normal, warning,
+    BACKOFF_FASTEST, BACKOFF_MIN, BACKOFF_STEP, BACKOFF_STEPS, Backoff, Candidate, Edge, Env,
+    Output, Remedy, Run, SATISFIED, State, TrialRecord, drain_first, finish, normal, warning,
 };
 use super::measure::{self, MetricDef};
 use super::monitor::{ConstraintMonitor, Trigger};
@@ -203,7 +203,7 @@ fn back_off(
             .filter(|c| c.feasible())
             .map(|c| c.eval.constraints.as_slice());
         let next = next_fraction(defs, corner, fraction, bounds);
-        (step < BACKOFF_STEPS && next >= BACKOFF_MIN).then_some(Candidate::Backoff {
+        (step < BACKOFF_STEPS && next >= BACKOFF_MIN).then_some(Backoff {
             index,
             fraction: next,
             step: step + 1,
@@ -211,16 +211,14 @@ fn back_off(
     } else {
         run.deferred_backoff.take()
     };
-    let Some(
-        backoff @ Candidate::Backoff {
-            index: pick,
-            fraction: next,
-            ..
-        },
-    ) = planned
-    else {
+    let Some(backoff) = planned else {
         return finish(run, env, defs, out);
     };
+    let Backoff {
+        index: pick,
+        fraction: next,
+        ..
+    } = backoff;
     let Some(y) = run
         .trials
         .get(pick)
@@ -256,7 +254,7 @@ fn back_off(
         ),
     ));
     let verify = State::VerifyApply {
-        candidate: backoff,
+        candidate: Candidate::Backoff(backoff),
         config: run.knobs.to_config(&y),
     };
     drain_first(run, env, verify)
@@ -448,9 +446,9 @@ pub fn after_tip(
 ) -> Option<State> {
     let (index, held) = match run.applied {
         Some(Candidate::Trial { index }) => (index, format!("trial {index}")),
-        Some(Candidate::Backoff {
+        Some(Candidate::Backoff(Backoff {
             index, fraction, ..
-        }) => (
+        })) => (
             index,
             format!("trial {index} backed off to {:.0} %", fraction * 100.0),
         ),
@@ -520,9 +518,9 @@ pub fn verified(
                 "config from {} holds: satisfaction {:.1} %, objective {}",
                 match &candidate {
                     Candidate::Trial { index } => format!("trial {index}"),
-                    Candidate::Backoff {
+                    Candidate::Backoff(Backoff {
                         index, fraction, ..
-                    } => format!("trial {index} backed off to {:.0} %", fraction * 100.0),
+                    }) => format!("trial {index} backed off to {:.0} %", fraction * 100.0),
                     Candidate::Baseline => "the baseline".into(),
                     Candidate::Library { profile } =>
                         format!("library profile {}", profile.metadata.name),
@@ -532,10 +530,7 @@ pub fn verified(
                     .map_or("-".to_string(), |o| format!("{o:.3}"))
             ),
         ));
-        let learned = matches!(
-            candidate,
-            Candidate::Trial { .. } | Candidate::Backoff { .. }
-        );
+        let learned = matches!(candidate, Candidate::Trial { .. } | Candidate::Backoff(_));
         if let (true, Some(ctx)) = (learned, &run.context) {
             out.push(Output::SaveProfile(Box::new(library::profile(
                 env.namespace,
@@ -593,11 +588,11 @@ pub fn verified(
                 None => back_off(run, env, defs, index, 1.0, 0, &eval.constraints, out),
             }
         }
-        Candidate::Backoff {
+        Candidate::Backoff(Backoff {
             index,
             fraction,
             step,
-        } => {
+        }) => {
             out.push(warning(
                 Reason::VerificationFailed,
                 format!(

@@ -372,7 +372,7 @@ pub(crate) fn drain_first(run: &Run, env: &Env<'_>, then: State) -> State {
     let config = match &then {
         State::TrialApply { config, .. }
         | State::VerifyApply {
-            candidate: Candidate::Trial { .. } | Candidate::Backoff { .. },
+            candidate: Candidate::Trial { .. } | Candidate::Backoff(_),
             config,
         } => config,
         _ => return then,

@@ -7,7 +7,7 @@ use configbot_manifests::meta::{condition_types as ct, set_condition};
 use configbot_manifests::performance_spec::TrialStatus;
 use configbot_manifests::{Condition, ConditionStatus, PerformanceSpecStatus, Reason};
 
-use super::machine::{Candidate, Run, State, TrialRecord};
+use super::machine::{Backoff, Candidate, Run, State, TrialRecord};
 use super::measure::MetricDef;
 
 /// Condition type written by the tuning loop: the run's outcome.
@@ -55,9 +55,9 @@ pub fn status(
     (s.best_trial, s.best_trial_backoff) = match (&run.applied, &monitored) {
         (Some(Candidate::Trial { index }), Some(_)) => (Some(*index as u32), None),
         (
-            Some(Candidate::Backoff {
+            Some(Candidate::Backoff(Backoff {
                 index, fraction, ..
-            }),
+            })),
             Some(_),
         ) => (Some(*index as u32), Some(*fraction)),
         _ => (None, None),
@@ -123,9 +123,9 @@ fn conditions(run: &Run) -> (Cond, Cond) {
                     Reason::Satisfied,
                     format!("applied the best trial ({index})"),
                 ),
-                Some(Candidate::Backoff {
+                Some(Candidate::Backoff(Backoff {
                     index, fraction, ..
-                }) => (
+                })) => (
                     Reason::Satisfied,
                     format!(
                         "applied the best trial ({index}) with its non-core knobs backed off to {:.0} %",

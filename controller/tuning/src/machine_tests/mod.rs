@@ -763,6 +763,32 @@ fn effects_and_resume_points() {
     let json = serde_json::to_string(&with(trial(None))).unwrap();
     let back: Run = serde_json::from_str(&json).unwrap();
     assert_eq!(back.state, trial(None));
+    // A back-off persists in the shape earlier versions wrote, and a run's
+    // set-aside back-off and edges survive a restart.
+    let backoff = Backoff {
+        index: 1,
+        fraction: 0.8,
+        step: 1,
+    };
+    let verifying = State::VerifyApply {
+        candidate: Candidate::Backoff(backoff),
+        config: cfg(),
+    };
+    assert_eq!(
+        serde_json::to_value(&verifying).unwrap()["candidate"],
+        serde_json::json!({"kind": "backoff", "index": 1, "fraction": 0.8, "step": 1})
+    );
+    let mut run = with(verifying.clone());
+    run.deferred_backoff = Some(backoff);
+    run.edges.push(Edge {
+        constraint: 0,
+        beyond: 38.0,
+        at_least: true,
+    });
+    let back: Run = serde_json::from_str(&serde_json::to_string(&run).unwrap()).unwrap();
+    assert_eq!(back.state, verifying);
+    assert_eq!(back.deferred_backoff, Some(backoff));
+    assert_eq!(back.edges, run.edges);
 }
 
 #[test]

@@ -159,7 +159,7 @@ fn a_verification_whose_windows_held_but_spread_predicts_misses_fails() {
     assert!(matches!(
         failed.state,
         State::VerifyApply {
-            candidate: Candidate::Backoff { index: 1, .. },
+            candidate: Candidate::Backoff(Backoff { index: 1, .. }),
             ..
         }
     ));
@@ -184,9 +184,10 @@ fn a_best_trial_failing_verification_is_backed_off_before_the_next_best() {
         run = r;
         assert_eq!(reasons(&out), vec!["VerificationFailed", "BackingOff"]);
         let State::VerifyApply {
-            candidate: Candidate::Backoff {
-                index: 1, fraction, ..
-            },
+            candidate:
+                Candidate::Backoff(Backoff {
+                    index: 1, fraction, ..
+                }),
             config,
         } = &run.state
         else {
@@ -482,11 +483,20 @@ fn a_held_config_that_tips_verifies_the_next_best_before_relearning_cold() {
         panic!("{:?}", failed.state)
     };
     assert_eq!(failed.rejected, vec![1, 0]);
+    assert!(!failed.edges.is_empty(), "the failure left an edge");
+    let mut failed = failed;
+    failed.deferred_backoff = Some(Backoff {
+        index: 1,
+        fraction: 0.8,
+        step: 1,
+    });
     let (cold, _) = step(failed, observed(true), &env);
     let State::Baseline { prior: None, .. } = cold.state else {
         panic!("relearns cold: {:?}", cold.state)
     };
     assert!(cold.trials.is_empty() && cold.tipped.is_none());
+    // Nothing of the old trials survives: no edge, no back-off set aside.
+    assert!(cold.edges.is_empty() && cold.deferred_backoff.is_none());
 }
 
 /// Nothing to fall back on: a tipped config whose run has no other feasible
@@ -751,7 +761,7 @@ fn a_back_off_from_a_measured_corner_takes_the_secant_step() {
     let (run, out) = verify(run, &env, &BAD);
     assert_eq!(reasons(&out), vec!["VerificationFailed", "BackingOff"]);
     let State::VerifyApply {
-        candidate: Candidate::Backoff { fraction, step, .. },
+        candidate: Candidate::Backoff(Backoff { fraction, step, .. }),
         ..
     } = run.state
     else {
@@ -810,11 +820,11 @@ fn a_trial_that_measured_more_than_a_back_off_promises_is_verified_instead() {
     assert_eq!(reasons(&out), vec!["VerificationFailed", "BackingOff"]);
     let State::VerifyApply {
         candidate:
-            Candidate::Backoff {
+            Candidate::Backoff(Backoff {
                 index: 1,
                 fraction,
                 step: 1,
-            },
+            }),
         ..
     } = run.state
     else {
