@@ -302,9 +302,9 @@ pub fn next_fraction(defs: &[MetricDef], corner: Option<&[f64]>, f: f64, bounds:
 /// ([`measure::robust_value`]): for each core constraint whose bound failed
 /// in the verification (or, when only windows missed, the one nearest its
 /// target relative to it), the trial's bound moved out by what the
-/// verification fell short of the target. A trial verifies at about its
-/// own bound less what the failed one lost between its trial and its
-/// verification, so only one beyond that edge can be expected to hold.
+/// verification fell short of the target (nothing when only windows
+/// missed): a trial inside it has no more margin than the one that failed
+/// had, plus what that one lacked, so it is no better bet.
 /// Measured on real-nodelets (2026-11-24): after a pick failed, four trials
 /// with bounds 25.25–25.65 Hz (target 25) were verified in turn, each
 /// missing a window, before one at 25.9 Hz held.
