@@ -3,8 +3,9 @@
 //! The parent opens the node's `cgroup.procs` files (close-on-exec) and the
 //! log file; the forked child, still running agent code, writes `0` ("me")
 //! into each procs file, starts a new session (so signals reach its whole
-//! process group and the agent's death does not), drops to the configured
-//! user, and only then execs. There is no window in which the node runs
+//! process group and the agent's death does not), gives the stop signals
+//! back their default action, drops to the configured user, and only then
+//! execs. There is no window in which the node runs
 //! outside its cgroup. Output goes straight to an O_APPEND log file, not a
 //! pipe, so a node keeps running (and logging) when the agent is killed.
 
@@ -34,6 +35,10 @@ pub fn open_log(path: &PathBuf) -> Result<File> {
             source,
         })
 }
+
+/// Signals a node starts with at their default action, whatever the agent
+/// inherited: those the agent stops nodes with, and the terminal's.
+const STOP_SIGNALS: [i32; 4] = [libc::SIGINT, libc::SIGTERM, libc::SIGQUIT, libc::SIGHUP];
 
 /// Spawns `spec` so that it joins the cgroup(s) behind `join_files` before exec.
 pub fn spawn_in_cgroup(
@@ -82,7 +87,7 @@ pub fn spawn_in_cgroup(
     #[allow(unsafe_code)]
     // SAFETY: the closure runs in the forked child before exec, where only
     // async-signal-safe calls are allowed. It calls only write(2), setsid(2),
-    // setgroups(2), setgid(2) and setuid(2) on values prepared in the parent
+    // signal(2), setgroups(2), setgid(2) and setuid(2) on values prepared in the parent
     // (fds kept open by `procs` until spawn returns, plain integers); it does
     // not allocate, lock, or touch Rust-managed state.
     unsafe {
@@ -94,6 +99,16 @@ pub fn spawn_in_cgroup(
             }
             if libc::setsid() < 0 {
                 return Err(std::io::Error::last_os_error());
+            }
+            // An ignored signal stays ignored across exec, and a shell cannot
+            // trap one it started with ignored (nor Python turn it into
+            // KeyboardInterrupt): an agent started in the background by a
+            // script (`cmd &` ignores SIGINT) would hand every node a SIGINT
+            // that cannot stop it gracefully. Nodes start as under init.
+            for sig in STOP_SIGNALS {
+                if libc::signal(sig, libc::SIG_DFL) == libc::SIG_ERR {
+                    return Err(std::io::Error::last_os_error());
+                }
             }
             if let Some((uid, gid)) = ids
                 && (libc::setgroups(1, &gid) != 0

@@ -181,6 +181,15 @@ async fn crashed_run_nodes_restart_per_policy_with_backoff() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn app_stop_is_graceful_and_start_brings_it_back() {
+    // As when the agent is started in the background by a script (`agent &`
+    // ignores SIGINT): its nodes must still start with SIGINT's default
+    // action, or the polite shell below cannot trap it. Process-wide, and
+    // harmless to the other tests, which never signal this process.
+    #[allow(unsafe_code)]
+    // SAFETY: signal(2) with SIG_IGN installs no handler.
+    unsafe {
+        libc::signal(libc::SIGINT, libc::SIG_IGN);
+    }
     let mut env = Env::new();
     let stack = stack_json(
         r#"{"apps":[{"name":"nav","nodes":[
