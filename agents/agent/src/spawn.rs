@@ -36,9 +36,37 @@ pub fn open_log(path: &PathBuf) -> Result<File> {
         })
 }
 
-/// Signals a node starts with at their default action, whatever the agent
-/// inherited: those the agent stops nodes with, and the terminal's.
+/// Signals a child starts with at their default action, whatever the agent
+/// inherited: those the agent stops its children with, and the terminal's.
+/// An ignored signal stays ignored across exec, and a shell cannot trap one
+/// it started with ignored (nor Python turn it into KeyboardInterrupt): an
+/// agent started in the background by a script (`cmd &` ignores SIGINT)
+/// would otherwise hand every node and recorder a SIGINT that cannot stop
+/// it gracefully. Children start as under init.
 const STOP_SIGNALS: [i32; 4] = [libc::SIGINT, libc::SIGTERM, libc::SIGQUIT, libc::SIGHUP];
+
+/// Sets [`STOP_SIGNALS`] to their default action. Async-signal-safe: for a
+/// forked child before exec.
+fn reset_stop_signals() -> std::io::Result<()> {
+    for sig in STOP_SIGNALS {
+        #[allow(unsafe_code)]
+        // SAFETY: signal(2) is async-signal-safe; SIG_DFL installs no handler.
+        if unsafe { libc::signal(sig, libc::SIG_DFL) } == libc::SIG_ERR {
+            return Err(std::io::Error::last_os_error());
+        }
+    }
+    Ok(())
+}
+
+/// Has `cmd`'s child start with [`STOP_SIGNALS`] at their default action.
+pub(crate) fn default_stop_signals(cmd: &mut tokio::process::Command) {
+    #[allow(unsafe_code)]
+    // SAFETY: the closure runs in the forked child before exec and calls
+    // only signal(2) (see `reset_stop_signals`).
+    unsafe {
+        cmd.pre_exec(reset_stop_signals);
+    }
+}
 
 /// Spawns `spec` so that it joins the cgroup(s) behind `join_files` before exec.
 pub fn spawn_in_cgroup(
@@ -100,16 +128,7 @@ pub fn spawn_in_cgroup(
             if libc::setsid() < 0 {
                 return Err(std::io::Error::last_os_error());
             }
-            // An ignored signal stays ignored across exec, and a shell cannot
-            // trap one it started with ignored (nor Python turn it into
-            // KeyboardInterrupt): an agent started in the background by a
-            // script (`cmd &` ignores SIGINT) would hand every node a SIGINT
-            // that cannot stop it gracefully. Nodes start as under init.
-            for sig in STOP_SIGNALS {
-                if libc::signal(sig, libc::SIG_DFL) == libc::SIG_ERR {
-                    return Err(std::io::Error::last_os_error());
-                }
-            }
+            reset_stop_signals()?;
             if let Some((uid, gid)) = ids
                 && (libc::setgroups(1, &gid) != 0
                     || libc::setgid(gid) != 0

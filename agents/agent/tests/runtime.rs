@@ -724,9 +724,13 @@ async fn a_recorder_left_by_a_killed_runtime_is_stopped() {
     )
     .unwrap();
     std::fs::set_permissions(&fake, std::os::unix::fs::PermissionsExt::from_mode(0o755)).unwrap();
+    // Started with SIGINT at its default action, as the runtime starts its
+    // recorders, whatever this test process inherited.
     let spawn = |dir: &std::path::Path| {
-        let mut c = std::process::Command::new(&fake);
-        c.args(["record", "-O"])
+        let mut c = std::process::Command::new("/usr/bin/env");
+        c.arg("--default-signal=INT")
+            .arg(&fake)
+            .args(["record", "-O"])
             .arg(dir.join("x-1.bag"))
             .arg("/scan");
         common::rt::Proc::spawn(c)

@@ -126,6 +126,8 @@ impl Recordings {
             .stderr(err)
             .process_group(0)
             .kill_on_drop(false);
+        // Stopped by SIGINT, so that it closes its bag.
+        crate::spawn::default_stop_signals(&mut cmd);
         if std::env::var_os("ROS_HOSTNAME").is_none() && std::env::var_os("ROS_IP").is_none() {
             cmd.env("ROS_HOSTNAME", "localhost");
         }
