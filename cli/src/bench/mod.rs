@@ -449,7 +449,7 @@ async fn start<'a>(
         // a node that never registered is one that cannot start (a missing
         // package, say), and numbers measured without it mean nothing.
         let graph = robot.robot.graph().await?;
-        let missing = unregistered(stack, &graph);
+        let missing = configbot_tuning::startup::missing(stack, &graph);
         if !missing.is_empty() {
             anyhow::bail!(
                 "{name}: {} never registered with the master and {} stayed silent (logs: {}):{}",
@@ -465,18 +465,6 @@ async fn start<'a>(
         );
     }
     Ok(robot)
-}
-
-/// The nodes `stack` starts that `graph` does not have (pure).
-fn unregistered(stack: &RobotStack, graph: &configbot_api::graph::Graph) -> Vec<String> {
-    stack
-        .spec
-        .apps
-        .iter()
-        .flat_map(|a| &a.nodes)
-        .filter(|n| n.run.is_some() && !graph.nodes.contains_key(&n.name))
-        .map(|n| n.name.clone())
-        .collect()
 }
 
 /// How long a fresh stack may take until every core metric's topic has flowed.
@@ -753,42 +741,6 @@ mod tests {
             ],
             ..PerformanceSpecStatus::default()
         }
-    }
-
-    #[test]
-    fn a_started_node_missing_from_the_graph_is_named() {
-        let (stack, _) = example("real-nodelets").unwrap();
-        let started: Vec<String> = stack
-            .spec
-            .apps
-            .iter()
-            .flat_map(|a| &a.nodes)
-            .map(|n| n.name.clone())
-            .collect();
-        let mut graph = configbot_api::graph::Graph::default();
-        for n in started.iter().filter(|n| n.as_str() != "/brightness") {
-            graph.nodes.insert(
-                n.clone(),
-                configbot_api::graph::NodeInfo {
-                    name: n.clone(),
-                    uri: String::new(),
-                    pid: None,
-                },
-            );
-        }
-        assert_eq!(
-            unregistered(&stack, &graph),
-            vec!["/brightness".to_string()]
-        );
-        graph.nodes.insert(
-            "/brightness".into(),
-            configbot_api::graph::NodeInfo {
-                name: "/brightness".into(),
-                uri: String::new(),
-                pid: None,
-            },
-        );
-        assert!(unregistered(&stack, &graph).is_empty());
     }
 
     #[test]
