@@ -111,7 +111,8 @@ pub fn example(name: &str) -> anyhow::Result<(RobotStack, PerformanceSpec)> {
 
 /// A private robot: control plane + embedded agent in a temp dir, with its
 /// own cgroup subtree (of CPU weight `cpu_weight`, default the kernel's) and
-/// ROS master port. `close` removes everything.
+/// ROS master port. `close` removes everything; `start` first removes the
+/// roots a killed demo or bench left ([`crate::stale`]).
 pub struct PrivateRobot {
     pub dir: PathBuf,
     pub server: Server,
@@ -123,6 +124,7 @@ pub struct PrivateRobot {
 impl PrivateRobot {
     pub async fn start(dir: &Path, cpu_weight: Option<u32>) -> anyhow::Result<PrivateRobot> {
         std::fs::create_dir_all(dir)?;
+        sweep_stale_roots().await;
         let port = std::net::TcpListener::bind("127.0.0.1:0")?
             .local_addr()?
             .port();
@@ -130,7 +132,7 @@ impl PrivateRobot {
         let args = RobotArgs {
             agent: true,
             agent_socket: None,
-            cgroup_root: format!("configbot-demo-{}", std::process::id()),
+            cgroup_root: crate::stale::private_root(std::process::id()),
             ros_master_uri: master_uri.clone(),
             // A private robot: its master is for this host's nodes only.
             ros_bind: "127.0.0.1".into(),
@@ -167,6 +169,28 @@ impl PrivateRobot {
     pub async fn apply(&self, obj: &Value, kind: Kind) -> anyhow::Result<()> {
         super::apply::apply_one(&self.client, obj, kind, false).await?;
         Ok(())
+    }
+}
+
+/// Removes what a killed demo or bench left in the cgroups ([`crate::stale`]),
+/// saying so; a root that cannot be removed is a warning, not a failure.
+async fn sweep_stale_roots() {
+    let swept = match tokio::task::spawn_blocking(crate::stale::sweep).await {
+        Ok(Ok(s)) => s,
+        Ok(Err(e)) => {
+            eprintln!("warning: looking for stale cgroup roots: {e:#}");
+            return;
+        }
+        Err(e) => {
+            eprintln!("warning: looking for stale cgroup roots: {e}");
+            return;
+        }
+    };
+    for (root, done) in swept {
+        match done {
+            Ok(()) => eprintln!("    removed the cgroup root {root}: its demo or bench is gone"),
+            Err(e) => eprintln!("warning: cannot remove the stale cgroup root {root}: {e:#}"),
+        }
     }
 }
 

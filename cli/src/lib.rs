@@ -13,6 +13,7 @@ mod get;
 mod output;
 pub mod report;
 mod robot;
+mod stale;
 
 use std::path::PathBuf;
 
