@@ -89,14 +89,7 @@ fn kill_all(backend: &dyn CgroupBackend, node: &NodeName) -> anyhow::Result<()> 
             anyhow::bail!("processes {pids:?} of {} did not die", node.as_str());
         }
         for pid in pids {
-            let Ok(pid) = libc::pid_t::try_from(pid) else {
-                continue;
-            };
-            #[allow(unsafe_code)]
-            // SAFETY: kill(2) takes plain integers and touches no memory of ours.
-            unsafe {
-                libc::kill(pid, libc::SIGKILL);
-            }
+            configbot_agent::send_signal(pid, libc::SIGKILL);
         }
         std::thread::sleep(Duration::from_millis(50));
     }

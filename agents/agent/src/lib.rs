@@ -28,6 +28,7 @@ pub mod spec;
 pub mod state;
 mod supervise;
 
+pub use agent::process::send_signal;
 pub use agent::stack::{StackDiff, diff_stacks};
 pub use agent::{Agent, ConfigUpdate, NodeStatus};
 pub use contract::NodeApi;

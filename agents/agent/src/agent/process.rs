@@ -143,7 +143,7 @@ impl Supervised for RunNode {
 }
 
 /// Sends `sig` to `pid` (negative: a process group); false if it failed.
-pub(crate) fn send_signal(pid: u32, sig: i32) -> bool {
+pub fn send_signal(pid: u32, sig: i32) -> bool {
     send_raw(i32::try_from(pid).unwrap_or(i32::MAX), sig)
 }
 
