@@ -375,6 +375,43 @@ impl KnobSpace {
         (self.to_config(&y) != self.to_config(x)).then_some(y)
     }
 
+    /// Back-offs of `x` with a fraction of its own for each knob that only
+    /// restricts a non-core app (pure): every combination of the fractions
+    /// `0, 1/(n−1), …, 1` of the way from the knob's minimum to its value in
+    /// `x`, other knobs as in `x`, with `n` (2 to 5) as large as keeps the
+    /// points within `limit`. The candidates a shaped back-off chooses
+    /// among (`outcome::backoff_point`).
+    pub fn backoff_shapes(&self, x: &[f64], limit: usize) -> Vec<Vec<f64>> {
+        if self.knobs.len() != x.len() {
+            return Vec::new();
+        }
+        let free: Vec<usize> = (0..x.len())
+            .filter(|&i| self.knobs[i].restricts_non_core && x[i] > self.knobs[i].min)
+            .collect();
+        let d = u32::try_from(free.len()).unwrap_or(u32::MAX);
+        let Some(n) = (2..=5usize)
+            .rev()
+            .find(|n| n.checked_pow(d).is_some_and(|c| c <= limit))
+        else {
+            return Vec::new();
+        };
+        let total = n.pow(d);
+        (0..total)
+            .map(|code| {
+                let mut y = x.to_vec();
+                let mut rest = code;
+                for &i in &free {
+                    let f = (rest % n) as f64 / (n - 1) as f64;
+                    rest /= n;
+                    let k = &self.knobs[i];
+                    let v = x[i].clamp(k.min, k.max);
+                    y[i] = k.min + f * (v - k.min);
+                }
+                y
+            })
+            .collect()
+    }
+
     /// The point that drains the non-core apps before `x` is applied: every
     /// adaptor feeding a non-core subscriber at its minimum rate (no new
     /// work) and every non-core node's CPU at its maximum (finish the old
@@ -864,6 +901,34 @@ mod tests {
         let floor = vec![1.0, 1.0, 0.05, 0.05, 0.05, 0.5, 0.5];
         assert_eq!(s.backed_off(&floor, 0.5), None);
         assert_eq!(s.backed_off(&x, 1.0), None);
+    }
+    #[test]
+    fn back_off_shapes_give_each_non_core_knob_its_own_fraction() {
+        let mut sp = spec();
+        sp.knobs.cpu.fix_core_nodes = false;
+        let all = ["/lidar", "/planner", "/camera", "/detector", "/web"];
+        let s = derive(&stack(), &sp, &graph(&all), &rates(), 2.0).unwrap();
+        // cpu: lidar, planner (core), camera, detector, web; rates: detector, web.
+        // camera and the web rate sit at their minimum: three knobs move.
+        let x = vec![1.0, 1.0, 0.05, 1.05, 2.0, 10.5, 0.5];
+        let shapes = s.backoff_shapes(&x, 4096);
+        assert_eq!(shapes.len(), 125, "five fractions for each of three knobs");
+        for y in &shapes {
+            assert_eq!((y[0], y[1], y[2], y[6]), (1.0, 1.0, 0.05, 0.5), "{y:?}");
+        }
+        assert!(shapes.contains(&x), "no back-off at all is one shape");
+        assert!(shapes.contains(&vec![1.0, 1.0, 0.05, 0.05, 0.05, 0.5, 0.5]));
+        // The detector's CPU a quarter of the way, the rest kept.
+        assert!(shapes.contains(&vec![1.0, 1.0, 0.05, 0.3, 2.0, 10.5, 0.5]));
+        let uniform = s.backed_off(&x, 0.5).unwrap();
+        assert!(
+            shapes
+                .iter()
+                .any(|y| y.iter().zip(&uniform).all(|(a, b)| (a - b).abs() < 1e-9))
+        );
+        // A tighter limit takes fewer fractions: 3³ = 27 ≤ 30 < 4³.
+        assert_eq!(s.backoff_shapes(&x, 30).len(), 27);
+        assert!(s.backoff_shapes(&x, 7).is_empty(), "not even 2³");
     }
     #[test]
     fn draining_holds_back_non_core_input_and_frees_non_core_cpu() {
