@@ -45,6 +45,17 @@ pub struct KnobDef {
     pub restricts_non_core: bool,
 }
 
+impl KnobDef {
+    /// The value a config sets for `v`: rounded to 0.001 CPU or 0.01 Hz, so
+    /// configs read well in status.
+    fn as_set(&self, v: f64) -> f64 {
+        match self.target {
+            KnobTarget::Cpu { .. } => round(v, 1000.0),
+            KnobTarget::Adaptor { .. } => round(v, 100.0),
+        }
+    }
+}
+
 /// The knobs of a run, in optimizer order.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct KnobSpace {
@@ -277,8 +288,8 @@ impl KnobSpace {
         configbot_optimizer::Space::new(knobs).map_err(|e| KnobError::Space(e.to_string()))
     }
 
-    /// The config of a point (knob values in order). Values are rounded to
-    /// 0.001 CPU and 0.01 Hz so configs read well in status.
+    /// The config of a point (knob values in order, each as set:
+    /// [`KnobDef::as_set`]).
     pub fn to_config(&self, x: &[f64]) -> ResourceConfig {
         let mut cfg = ResourceConfig {
             cpu_period_micros: Some(self.period_micros),
@@ -289,12 +300,12 @@ impl KnobSpace {
             let v = v.clamp(k.min, k.max);
             match &k.target {
                 KnobTarget::Cpu { node } => {
-                    cfg.cpu.insert(node.clone(), round(v, 1000.0));
+                    cfg.cpu.insert(node.clone(), k.as_set(v));
                 }
                 KnobTarget::Adaptor { topic, subscriber } => cfg.adaptors.push(AdaptorRate {
                     topic: topic.clone(),
                     subscriber: subscriber.clone(),
-                    rate_hz: round(v, 100.0),
+                    rate_hz: k.as_set(v),
                 }),
             }
         }
@@ -410,6 +421,18 @@ impl KnobSpace {
                 y
             })
             .collect()
+    }
+
+    /// Whether `y` gives the non-core apps at least what `z` does on every
+    /// knob that only restricts one (pure): then `y` is no safer for the core
+    /// constraints than `z` (see [`KnobDef::restricts_non_core`]), so once
+    /// `z` failed, `y` is no back-off from it.
+    pub fn gives_no_less(&self, y: &[f64], z: &[f64]) -> bool {
+        self.knobs
+            .iter()
+            .zip(y.iter().zip(z))
+            .filter(|(k, _)| k.restricts_non_core)
+            .all(|(k, (&a, &b))| k.as_set(a) >= k.as_set(b))
     }
 
     /// The point that drains the non-core apps before `x` is applied: every
@@ -929,6 +952,18 @@ mod tests {
         // A tighter limit takes fewer fractions: 3³ = 27 ≤ 30 < 4³.
         assert_eq!(s.backoff_shapes(&x, 30).len(), 27);
         assert!(s.backoff_shapes(&x, 7).is_empty(), "not even 2³");
+        // Once x failed, a shape that keeps every non-core knob is no back-off
+        // from it (the core knobs do not count); one that lowers any one is.
+        let kept: Vec<&Vec<f64>> = shapes.iter().filter(|y| s.gives_no_less(y, &x)).collect();
+        assert_eq!(kept, vec![&x]);
+        let mut core_lower = x.clone();
+        core_lower[0] = 0.5;
+        assert!(s.gives_no_less(&core_lower, &x));
+        // Compared as a config sets them: a failed point read back from its
+        // config (rounded to 0.001 CPU) still counts.
+        let failed = s.from_config(&s.to_config(&[1.0, 1.0, 0.05, 0.30049, 2.0, 10.5, 0.5]));
+        assert!(s.gives_no_less(&[1.0, 1.0, 0.05, 0.3004, 2.0, 10.5, 0.5], &failed));
+        assert!(!s.gives_no_less(&[1.0, 1.0, 0.05, 0.29, 2.0, 10.5, 0.5], &failed));
     }
     #[test]
     fn draining_holds_back_non_core_input_and_frees_non_core_cpu() {

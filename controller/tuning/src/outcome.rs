@@ -278,10 +278,22 @@ const SHAPES: usize = 4096;
 /// own process) from 12 Hz to 6 Hz of its 15 Hz cap with the vision
 /// manager's input, which alone moved the core rate (least squares over 44
 /// trials: −16 Hz over the vision input's range, −2.5 over brightness's).
+/// The models learn from trials, not verifications, so they may still call
+/// the failed trial safe: a shape that gives the non-core apps on every knob
+/// as much as the trial or one of its failed back-offs
+/// ([`KnobSpace::gives_no_less`], `Run::failed_backoffs`) is no candidate.
+/// Measured on real-nodelets (2026-11-25), before that rule: the second
+/// shaped back-off chose the failed trial itself.
 fn backoff_point(run: &mut Run, pick: usize, f: f64) -> Option<(Vec<f64>, Option<String>)> {
     let x = run.trials.get(pick)?.x.clone();
     let uniform = run.knobs.backed_off(&x, f)?;
-    let shapes = run.knobs.backoff_shapes(&x, SHAPES);
+    let failed: Vec<&Vec<f64>> = std::iter::once(&x).chain(&run.failed_backoffs).collect();
+    let shapes: Vec<Vec<f64>> = run
+        .knobs
+        .backoff_shapes(&x, SHAPES)
+        .into_iter()
+        .filter(|y| !failed.iter().any(|z| run.knobs.gives_no_less(y, z)))
+        .collect();
     let Some(opt) = run.optimizer.as_mut() else {
         return Some((uniform, None));
     };
@@ -677,6 +689,7 @@ pub fn verified(
             fraction,
             step,
         }) => {
+            run.failed_backoffs.push(run.knobs.from_config(&config));
             out.push(warning(
                 Reason::VerificationFailed,
                 format!(
