@@ -24,7 +24,9 @@ pub mod space;
 pub mod trust;
 
 pub use error::{Error, Result};
-pub use optimizer::{Best, Optimizer, Outcome, Proposal, SafetyFloor, Settings, StopReason, Unsat};
+pub use optimizer::{
+    Best, Optimizer, Outcome, Prediction, Proposal, SafetyFloor, Settings, StopReason, Unsat,
+};
 
 pub use problem::{Constraint, Goal, Objective, Observation, Problem, Scalarization, Sense};
 pub use space::{Knob, Scale, Space};

@@ -216,6 +216,37 @@ impl Models {
     pub fn constraint_predictions(&self, u: &[f64]) -> Vec<(f64, f64)> {
         self.constraints.iter().map(|gp| gp.predict(u)).collect()
     }
+
+    /// The scalarised objective's and every constraint's prediction at
+    /// each point (unit-cube inputs).
+    pub fn predictions(&self, problem: &Problem, us: &[Vec<f64>]) -> Vec<Prediction> {
+        let objs: Vec<Vec<(f64, f64)>> = self
+            .objectives
+            .iter()
+            .map(|gp| gp.predict_many(us))
+            .collect();
+        let cons: Vec<Vec<(f64, f64)>> = self
+            .constraints
+            .iter()
+            .map(|gp| gp.predict_many(us))
+            .collect();
+        (0..us.len())
+            .map(|i| Prediction {
+                objective: (!objs.is_empty())
+                    .then(|| scalar_prediction(problem, objs.iter().map(|p| p[i]))),
+                constraints: cons.iter().map(|p| p[i]).collect(),
+            })
+            .collect()
+    }
+}
+
+/// What the models predict at one config: (mean, sd) of the scalarised
+/// objective (normalised units; `None` before any complete trial) and of
+/// each constraint (its own units).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Prediction {
+    pub objective: Option<(f64, f64)>,
+    pub constraints: Vec<(f64, f64)>,
 }
 
 /// Normal approximation of the scalarised objective from the objectives'

@@ -50,8 +50,8 @@ use serde::{Deserialize, Serialize};
 use crate::design::Sobol;
 use crate::error::{Error, Result};
 use crate::gp::{FitOptions, Hyper};
-pub use crate::models::SafetyFloor;
 use crate::models::{FitPlan, Models, Score};
+pub use crate::models::{Prediction, SafetyFloor};
 use crate::problem::{Observation, Problem, Sense};
 use crate::rng::Rng;
 use crate::safe_region::{SLOPE_FACTOR, SafeRegion};
@@ -792,6 +792,15 @@ impl Optimizer {
                 }
             }
         }
+    }
+
+    /// What the models predict at each config (knob units), from one fit:
+    /// for choosing among configs that were not measured.
+    pub fn predict_many(&mut self, xs: &[Vec<f64>]) -> Result<Vec<Prediction>> {
+        let mut copy = self.clone();
+        let models = copy.fit_models()?;
+        let us: Vec<Vec<f64>> = xs.iter().map(|x| self.problem.space.to_unit(x)).collect();
+        Ok(models.predictions(&self.problem, &us))
     }
 
     /// Predicted (mean, sd) of each constraint at a config; for diagnostics and tests.

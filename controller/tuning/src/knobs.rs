@@ -45,6 +45,17 @@ pub struct KnobDef {
     pub restricts_non_core: bool,
 }
 
+impl KnobDef {
+    /// The value a config sets for `v`: rounded to 0.001 CPU or 0.01 Hz, so
+    /// configs read well in status.
+    fn as_set(&self, v: f64) -> f64 {
+        match self.target {
+            KnobTarget::Cpu { .. } => round(v, 1000.0),
+            KnobTarget::Adaptor { .. } => round(v, 100.0),
+        }
+    }
+}
+
 /// The knobs of a run, in optimizer order.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct KnobSpace {
@@ -277,8 +288,8 @@ impl KnobSpace {
         configbot_optimizer::Space::new(knobs).map_err(|e| KnobError::Space(e.to_string()))
     }
 
-    /// The config of a point (knob values in order). Values are rounded to
-    /// 0.001 CPU and 0.01 Hz so configs read well in status.
+    /// The config of a point (knob values in order, each as set:
+    /// [`KnobDef::as_set`]).
     pub fn to_config(&self, x: &[f64]) -> ResourceConfig {
         let mut cfg = ResourceConfig {
             cpu_period_micros: Some(self.period_micros),
@@ -289,12 +300,12 @@ impl KnobSpace {
             let v = v.clamp(k.min, k.max);
             match &k.target {
                 KnobTarget::Cpu { node } => {
-                    cfg.cpu.insert(node.clone(), round(v, 1000.0));
+                    cfg.cpu.insert(node.clone(), k.as_set(v));
                 }
                 KnobTarget::Adaptor { topic, subscriber } => cfg.adaptors.push(AdaptorRate {
                     topic: topic.clone(),
                     subscriber: subscriber.clone(),
-                    rate_hz: round(v, 100.0),
+                    rate_hz: k.as_set(v),
                 }),
             }
         }
@@ -373,6 +384,55 @@ impl KnobSpace {
             })
             .collect();
         (self.to_config(&y) != self.to_config(x)).then_some(y)
+    }
+
+    /// Back-offs of `x` with a fraction of its own for each knob that only
+    /// restricts a non-core app (pure): every combination of the fractions
+    /// `0, 1/(n−1), …, 1` of the way from the knob's minimum to its value in
+    /// `x`, other knobs as in `x`, with `n` (2 to 5) as large as keeps the
+    /// points within `limit`. The candidates a shaped back-off chooses
+    /// among (`outcome::backoff_point`).
+    pub fn backoff_shapes(&self, x: &[f64], limit: usize) -> Vec<Vec<f64>> {
+        if self.knobs.len() != x.len() {
+            return Vec::new();
+        }
+        let free: Vec<usize> = (0..x.len())
+            .filter(|&i| self.knobs[i].restricts_non_core && x[i] > self.knobs[i].min)
+            .collect();
+        let d = u32::try_from(free.len()).unwrap_or(u32::MAX);
+        let Some(n) = (2..=5usize)
+            .rev()
+            .find(|n| n.checked_pow(d).is_some_and(|c| c <= limit))
+        else {
+            return Vec::new();
+        };
+        let total = n.pow(d);
+        (0..total)
+            .map(|code| {
+                let mut y = x.to_vec();
+                let mut rest = code;
+                for &i in &free {
+                    let f = (rest % n) as f64 / (n - 1) as f64;
+                    rest /= n;
+                    let k = &self.knobs[i];
+                    let v = x[i].clamp(k.min, k.max);
+                    y[i] = k.min + f * (v - k.min);
+                }
+                y
+            })
+            .collect()
+    }
+
+    /// Whether `y` gives the non-core apps at least what `z` does on every
+    /// knob that only restricts one (pure): then `y` is no safer for the core
+    /// constraints than `z` (see [`KnobDef::restricts_non_core`]), so once
+    /// `z` failed, `y` is no back-off from it.
+    pub fn gives_no_less(&self, y: &[f64], z: &[f64]) -> bool {
+        self.knobs
+            .iter()
+            .zip(y.iter().zip(z))
+            .filter(|(k, _)| k.restricts_non_core)
+            .all(|(k, (&a, &b))| k.as_set(a) >= k.as_set(b))
     }
 
     /// The point that drains the non-core apps before `x` is applied: every
@@ -864,6 +924,46 @@ mod tests {
         let floor = vec![1.0, 1.0, 0.05, 0.05, 0.05, 0.5, 0.5];
         assert_eq!(s.backed_off(&floor, 0.5), None);
         assert_eq!(s.backed_off(&x, 1.0), None);
+    }
+    #[test]
+    fn back_off_shapes_give_each_non_core_knob_its_own_fraction() {
+        let mut sp = spec();
+        sp.knobs.cpu.fix_core_nodes = false;
+        let all = ["/lidar", "/planner", "/camera", "/detector", "/web"];
+        let s = derive(&stack(), &sp, &graph(&all), &rates(), 2.0).unwrap();
+        // cpu: lidar, planner (core), camera, detector, web; rates: detector, web.
+        // camera and the web rate sit at their minimum: three knobs move.
+        let x = vec![1.0, 1.0, 0.05, 1.05, 2.0, 10.5, 0.5];
+        let shapes = s.backoff_shapes(&x, 4096);
+        assert_eq!(shapes.len(), 125, "five fractions for each of three knobs");
+        for y in &shapes {
+            assert_eq!((y[0], y[1], y[2], y[6]), (1.0, 1.0, 0.05, 0.5), "{y:?}");
+        }
+        assert!(shapes.contains(&x), "no back-off at all is one shape");
+        assert!(shapes.contains(&vec![1.0, 1.0, 0.05, 0.05, 0.05, 0.5, 0.5]));
+        // The detector's CPU a quarter of the way, the rest kept.
+        assert!(shapes.contains(&vec![1.0, 1.0, 0.05, 0.3, 2.0, 10.5, 0.5]));
+        let uniform = s.backed_off(&x, 0.5).unwrap();
+        assert!(
+            shapes
+                .iter()
+                .any(|y| y.iter().zip(&uniform).all(|(a, b)| (a - b).abs() < 1e-9))
+        );
+        // A tighter limit takes fewer fractions: 3³ = 27 ≤ 30 < 4³.
+        assert_eq!(s.backoff_shapes(&x, 30).len(), 27);
+        assert!(s.backoff_shapes(&x, 7).is_empty(), "not even 2³");
+        // Once x failed, a shape that keeps every non-core knob is no back-off
+        // from it (the core knobs do not count); one that lowers any one is.
+        let kept: Vec<&Vec<f64>> = shapes.iter().filter(|y| s.gives_no_less(y, &x)).collect();
+        assert_eq!(kept, vec![&x]);
+        let mut core_lower = x.clone();
+        core_lower[0] = 0.5;
+        assert!(s.gives_no_less(&core_lower, &x));
+        // Compared as a config sets them: a failed point read back from its
+        // config (rounded to 0.001 CPU) still counts.
+        let failed = s.from_config(&s.to_config(&[1.0, 1.0, 0.05, 0.30049, 2.0, 10.5, 0.5]));
+        assert!(s.gives_no_less(&[1.0, 1.0, 0.05, 0.3004, 2.0, 10.5, 0.5], &failed));
+        assert!(!s.gives_no_less(&[1.0, 1.0, 0.05, 0.29, 2.0, 10.5, 0.5], &failed));
     }
     #[test]
     fn draining_holds_back_non_core_input_and_frees_non_core_cpu() {

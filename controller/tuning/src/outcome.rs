@@ -10,7 +10,7 @@ use configbot_api::graph::Graph;
 use configbot_api::measure::MeasureReport;
 use configbot_manifests::performance_spec::RemediationAction;
 use configbot_manifests::{ProfileContext, ProfileTrial, Reason, ResourceConfig, RobotStack};
-use configbot_optimizer::Observation;
+use configbot_optimizer::{Observation, Prediction};
 
 use super::knobs::KnobSpace;
 use super::library;
@@ -219,11 +219,7 @@ fn back_off(
         fraction: next,
         ..
     } = backoff;
-    let Some(y) = run
-        .trials
-        .get(pick)
-        .and_then(|t| run.knobs.backed_off(&t.x, next))
-    else {
+    let Some((y, shaped)) = backoff_point(run, pick, next) else {
         return finish(run, env, defs, out);
     };
     let objective = |t: &TrialRecord| t.eval.objective.unwrap_or(0.0);
@@ -246,11 +242,17 @@ fn back_off(
         run.deferred_backoff = Some(backoff);
         return finish(run, env, defs, out);
     }
+    let how = match shaped {
+        None => format!("at {:.0} % of the way from their minimum", next * 100.0),
+        Some(parts) => format!(
+            "as far back as {:.0} % of the way from their minimum promises by the models, shaped where they predict more objective ({parts})",
+            next * 100.0
+        ),
+    };
     out.push(normal(
         Reason::BackingOff,
         format!(
-            "verifying trial {pick} with its non-core knobs at {:.0} % of the way from their minimum, for a margin from the core constraints",
-            next * 100.0
+            "verifying trial {pick} with its non-core knobs {how}, for a margin from the core constraints"
         ),
     ));
     let verify = State::VerifyApply {
@@ -258,6 +260,100 @@ fn back_off(
         config: run.knobs.to_config(&y),
     };
     drain_first(run, env, verify)
+}
+
+/// Candidates a shaped back-off weighs, at most (see
+/// [`KnobSpace::backoff_shapes`]).
+const SHAPES: usize = 4096;
+
+/// The point to verify when trial `pick` backs off to fraction `f`, and,
+/// when it is not the uniform back-off, how each knob was moved. The uniform
+/// back-off ([`KnobSpace::backed_off`]) moves every non-core knob by `f`,
+/// so it gives up as much of a knob that does not threaten the core as of
+/// one that does. With fitted models, each knob gets its own fraction
+/// instead: of [`KnobSpace::backoff_shapes`], the point the models predict
+/// the most objective for among those they predict at least as safe as the
+/// uniform back-off ([`safest_best`]). Measured on real-nodelets
+/// (2026-11-25): the uniform back-off took the brightness transform (its
+/// own process) from 12 Hz to 6 Hz of its 15 Hz cap with the vision
+/// manager's input, which alone moved the core rate (least squares over 44
+/// trials: −16 Hz over the vision input's range, −2.5 over brightness's).
+/// The models learn from trials, not verifications, so they may still call
+/// the failed trial safe: a shape that gives the non-core apps on every knob
+/// as much as the trial or one of its failed back-offs
+/// ([`KnobSpace::gives_no_less`], `Run::failed_backoffs`) is no candidate.
+/// Measured on real-nodelets (2026-11-25), before that rule: the second
+/// shaped back-off chose the failed trial itself.
+fn backoff_point(run: &mut Run, pick: usize, f: f64) -> Option<(Vec<f64>, Option<String>)> {
+    let x = run.trials.get(pick)?.x.clone();
+    let uniform = run.knobs.backed_off(&x, f)?;
+    let failed: Vec<&Vec<f64>> = std::iter::once(&x).chain(&run.failed_backoffs).collect();
+    let shapes: Vec<Vec<f64>> = run
+        .knobs
+        .backoff_shapes(&x, SHAPES)
+        .into_iter()
+        .filter(|y| !failed.iter().any(|z| run.knobs.gives_no_less(y, z)))
+        .collect();
+    let Some(opt) = run.optimizer.as_mut() else {
+        return Some((uniform, None));
+    };
+    let points: Vec<Vec<f64>> = std::iter::once(uniform.clone()).chain(shapes).collect();
+    let Ok(preds) = opt.predict_many(&points) else {
+        return Some((uniform, None));
+    };
+    let constraints = &opt.problem().constraints;
+    let Some(best) = safest_best(&preds[0], &preds[1..], constraints) else {
+        return Some((uniform, None));
+    };
+    let y = points[best + 1].clone();
+    if run.knobs.to_config(&y) == run.knobs.to_config(&uniform) {
+        return Some((uniform, None));
+    }
+    let parts: Vec<String> = run
+        .knobs
+        .knobs
+        .iter()
+        .zip(x.iter().zip(&y))
+        .filter(|(k, _)| k.restricts_non_core)
+        .map(|(k, (&xv, &yv))| {
+            let span = xv - k.min;
+            let share = if span > 0.0 { (yv - k.min) / span } else { 1.0 };
+            format!("{} {:.0} %", k.name, share * 100.0)
+        })
+        .collect();
+    Some((y, Some(parts.join(", "))))
+}
+
+/// The candidate to prefer to a reference point (pure): the one with the
+/// highest predicted objective, among those whose every constraint's
+/// pessimistic prediction (mean − sd for at-least, mean + sd for at-most)
+/// has at least the reference's margin; `None` when no such candidate
+/// predicts more objective than the reference, or without objective
+/// predictions.
+pub fn safest_best(
+    reference: &Prediction,
+    candidates: &[Prediction],
+    constraints: &[configbot_optimizer::Constraint],
+) -> Option<usize> {
+    let pessimistic = |c: &configbot_optimizer::Constraint, (m, sd): (f64, f64)| match c.sense {
+        configbot_optimizer::Sense::AtLeast => c.margin(m - sd),
+        configbot_optimizer::Sense::AtMost => c.margin(m + sd),
+    };
+    let safe = |p: &Prediction| {
+        constraints
+            .iter()
+            .zip(p.constraints.iter().zip(&reference.constraints))
+            .all(|(c, (&here, &there))| pessimistic(c, here) >= pessimistic(c, there))
+    };
+    let floor = reference.objective?.0;
+    candidates
+        .iter()
+        .enumerate()
+        .filter(|(_, p)| safe(p))
+        .filter_map(|(i, p)| Some((i, p.objective?.0)))
+        .filter(|&(_, o)| o > floor)
+        .max_by(|a, b| a.1.total_cmp(&b.1))
+        .map(|(i, _)| i)
 }
 
 /// The objective a back-off to fraction `f` of the way from the restrictive
@@ -593,6 +689,7 @@ pub fn verified(
             fraction,
             step,
         }) => {
+            run.failed_backoffs.push(run.knobs.from_config(&config));
             out.push(warning(
                 Reason::VerificationFailed,
                 format!(

@@ -748,6 +748,44 @@ fn a_back_off_aims_where_the_line_from_the_corner_crosses_the_target() {
     assert!(near(f, 0.5), "{f}");
 }
 
+/// A shaped back-off takes the point with the most predicted objective
+/// among those predicted at least as safe as the uniform back-off, by each
+/// constraint's pessimistic prediction (mean − sd at least, + sd at most).
+#[test]
+fn a_shaped_back_off_is_no_less_safe_by_the_models_and_promises_more() {
+    use crate::outcome::safest_best;
+    use configbot_optimizer::{Constraint, Prediction};
+    let cons = [
+        Constraint::at_least("fps", 25.0),
+        Constraint::at_most("lat", 100.0),
+    ];
+    let p = |obj: f64, fps: (f64, f64), lat: (f64, f64)| Prediction {
+        objective: Some((obj, 0.1)),
+        constraints: vec![fps, lat],
+    };
+    // The uniform back-off: fps 28 ± 1 (27 pessimistic), latency 80 ± 5 (85).
+    let uniform = p(0.4, (28.0, 1.0), (80.0, 5.0));
+    let candidates = [
+        p(0.9, (27.5, 1.0), (80.0, 5.0)), // more objective, fps less safe
+        p(0.7, (29.0, 1.5), (79.0, 5.0)), // as safe on both (27.5, 84)
+        p(0.8, (28.0, 1.0), (82.0, 5.0)), // latency less safe (87)
+        p(0.6, (30.0, 0.5), (70.0, 2.0)), // safer, less objective than the one above
+    ];
+    assert_eq!(safest_best(&uniform, &candidates, &cons), Some(1));
+    // Nothing safe promises more than the uniform back-off: keep it.
+    assert_eq!(safest_best(&uniform, &candidates[..1], &cons), None);
+    assert_eq!(
+        safest_best(&p(0.95, (28.0, 1.0), (80.0, 5.0)), &candidates, &cons),
+        None
+    );
+    // Without objective predictions (no complete trial) there is nothing to weigh.
+    let blind = Prediction {
+        objective: None,
+        constraints: uniform.constraints.clone(),
+    };
+    assert_eq!(safest_best(&blind, &candidates, &cons), None);
+}
+
 /// With a measured corner the back-off aims at the target; after
 /// [`BACKOFF_STEPS`] the next best trial is verified as measured.
 #[test]
