@@ -176,6 +176,13 @@ pub fn read_stack(path: &Path) -> Result<StackSpec> {
 
 /// The runtime options these arguments describe.
 pub fn options(args: &AgentArgs) -> Result<RuntimeOptions> {
+    if let Some(addr) = args.tcp
+        && args.token.as_deref().is_none_or(str::is_empty)
+    {
+        return Err(Error::InvalidConfig(format!(
+            "--tcp {addr} needs a bearer token: pass --token or set CONFIGBOT_AGENT_TOKEN"
+        )));
+    }
     Ok(RuntimeOptions {
         settings: args.settings()?,
         data_plane: (!args.no_ros).then(|| DataPlaneOptions {
@@ -194,10 +201,6 @@ pub fn options(args: &AgentArgs) -> Result<RuntimeOptions> {
 /// Runs the node runtime until SIGINT or SIGTERM, then shuts down
 /// (processes keep running).
 pub async fn run(args: AgentArgs) -> Result<()> {
-    let io = |path: &PathBuf| {
-        let path = path.clone();
-        move |source| Error::Io { path, source }
-    };
     let opts = options(&args)?;
     let stack = match &args.stack {
         Some(p) => read_stack(p)?,
@@ -205,7 +208,7 @@ pub async fn run(args: AgentArgs) -> Result<()> {
             .and_then(|s| s.stack)
             .unwrap_or_default(),
     };
-    let layout = Layout::detect().map_err(io(&PathBuf::from("/proc/self/mountinfo")))?;
+    let layout = Layout::detect().map_err(io_on("/proc/self/mountinfo"))?;
     let backend = open_backend(&layout, opts.settings.cgroup_root.clone())?;
     let rt = NodeRuntime::start(backend, opts, stack).await?;
     tracing::info!(
@@ -213,30 +216,90 @@ pub async fn run(args: AgentArgs) -> Result<()> {
         ros_master = rt.master_uri().as_deref().unwrap_or("disabled"),
         "node agent started"
     );
+    // However serving ends, the runtime shuts down (and lifts limits when
+    // asked to).
+    let served = serve(&rt, &args).await;
+    rt.shutdown().await;
+    served
+}
 
-    let unix = crate::api::bind_unix(&args.socket).map_err(io(&args.socket))?;
-    let mut servers = tokio::task::JoinSet::new();
-    servers.spawn(crate::api::serve_unix(rt.clone(), unix));
-    if let Some(addr) = args.tcp {
-        let token = args.token.clone().unwrap_or_default();
-        let l = tokio::net::TcpListener::bind(addr)
-            .await
-            .map_err(io(&PathBuf::from(addr.to_string())))?;
-        servers.spawn(crate::api::serve_tcp(rt.clone(), l, token));
-    }
-    let mut term = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())
-        .map_err(io(&PathBuf::from("SIGTERM")))?;
-    tokio::select! {
-        _ = tokio::signal::ctrl_c() => {}
-        _ = term.recv() => {}
-        Some(res) = servers.join_next() => {
-            if let Ok(Err(e)) = res {
-                rt.shutdown().await;
-                return Err(Error::Io { path: args.socket.clone(), source: e });
-            }
+/// Serves the API on the Unix socket (and on TCP when asked) until SIGINT,
+/// SIGTERM or a server's failure, which names its address; then removes the
+/// socket.
+async fn serve(rt: &NodeRuntime, args: &AgentArgs) -> Result<()> {
+    let unix = crate::api::bind_unix(&args.socket).map_err(io_on(&args.socket))?;
+    let served = async {
+        let mut servers = tokio::task::JoinSet::new();
+        let socket = args.socket.clone();
+        let api = crate::api::serve_unix(rt.clone(), unix);
+        servers.spawn(async move { (socket, api.await) });
+        if let Some(addr) = args.tcp {
+            let token = args.token.clone().unwrap_or_default();
+            let at = PathBuf::from(addr.to_string());
+            let l = tokio::net::TcpListener::bind(addr)
+                .await
+                .map_err(io_on(&at))?;
+            let api = crate::api::serve_tcp(rt.clone(), l, token);
+            servers.spawn(async move { (at, api.await) });
+        }
+        let mut term = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())
+            .map_err(io_on("SIGTERM"))?;
+        tokio::select! {
+            _ = tokio::signal::ctrl_c() => Ok(()),
+            _ = term.recv() => Ok(()),
+            Some(res) = servers.join_next() => match res {
+                Ok((path, Err(source))) => Err(Error::Io { path, source }),
+                _ => Ok(()),
+            },
         }
     }
-    rt.shutdown().await;
+    .await;
     let _ = std::fs::remove_file(&args.socket);
-    Ok(())
+    served
+}
+
+/// An IO error's mapping that names `path`.
+fn io_on(path: impl AsRef<Path>) -> impl FnOnce(std::io::Error) -> Error {
+    let path = path.as_ref().to_path_buf();
+    move |source| Error::Io { path, source }
+}
+
+#[cfg(test)]
+mod tests {
+    use clap::Parser;
+
+    use super::*;
+
+    #[derive(Parser)]
+    struct Cmd {
+        #[command(flatten)]
+        agent: AgentArgs,
+    }
+
+    fn args(argv: &[&str]) -> AgentArgs {
+        Cmd::try_parse_from(std::iter::once("agent").chain(argv.iter().copied()))
+            .unwrap()
+            .agent
+    }
+
+    /// A TCP API without a token is refused before anything starts, and the
+    /// error names the address and both ways to give one.
+    #[test]
+    fn tcp_without_a_token_is_refused_up_front() {
+        let mut a = args(&["--tcp", "127.0.0.1:9443"]);
+        a.token = None; // whatever CONFIGBOT_AGENT_TOKEN the test runs with
+        let msg = options(&a).expect_err("refused").to_string();
+        assert!(msg.contains("--tcp 127.0.0.1:9443"), "{msg}");
+        assert!(
+            msg.contains("--token") && msg.contains("CONFIGBOT_AGENT_TOKEN"),
+            "{msg}"
+        );
+        a.token = Some(String::new());
+        assert!(options(&a).is_err(), "an empty token is no token");
+        a.token = Some("s3cret".into());
+        assert!(options(&a).is_ok());
+        let mut unix_only = args(&[]);
+        unix_only.token = None;
+        assert!(options(&unix_only).is_ok());
+    }
 }
