@@ -409,7 +409,7 @@ pub async fn wait_for_outcome(
         if settled(&st) {
             if let (Some(i), Some(f)) = (st.best_trial, st.best_trial_backoff) {
                 println!(
-                    "    trial {} holds with its non-core knobs backed off to {:.0} %: {}",
+                    "    trial {} holds with its non-core knobs backed off (as safe as all at {:.0} %): {}",
                     i + 1,
                     f * 100.0,
                     configbot_controller::tuning::view::config_text(

@@ -376,9 +376,10 @@ pub struct PerformanceSpecStatus {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub best_trial: Option<u32>,
     /// Set when the best trial failed verification and a backed-off version of
-    /// it held: the fraction (0..1) of the way from each non-core knob's minimum
-    /// to the trial's value that the applied config keeps (a margin from the
-    /// core constraint's edge).
+    /// it held (a margin from the core constraint's edge): the fraction (0..1)
+    /// of the way from each non-core knob's minimum to the trial's value that
+    /// the applied config keeps, or, when the back-off was shaped (each knob at
+    /// its own fraction), the fraction it was predicted at least as safe as.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub best_trial_backoff: Option<f64>,
     /// Trials whose config failed verification (its trial measurement was not

@@ -796,7 +796,7 @@ impl Optimizer {
 
     /// What the models predict at each config (knob units), from one fit:
     /// for choosing among configs that were not measured.
-    pub fn predict_many(&mut self, xs: &[Vec<f64>]) -> Result<Vec<Prediction>> {
+    pub fn predict_many(&self, xs: &[Vec<f64>]) -> Result<Vec<Prediction>> {
         let mut copy = self.clone();
         let models = copy.fit_models()?;
         let us: Vec<Vec<f64>> = xs.iter().map(|x| self.problem.space.to_unit(x)).collect();

@@ -123,7 +123,7 @@ fn view(name: &str, metrics: &[String], st: &PerformanceSpecStatus) -> String {
     }
     if let (Some(i), Some(f)) = (st.best_trial, st.best_trial_backoff) {
         out.push_str(&format!(
-            "applied: trial {i} with its non-core knobs backed off to {:.0} %: {}\n",
+            "applied: trial {i} with its non-core knobs backed off (as safe as all at {:.0} %): {}\n",
             f * 100.0,
             config_text(&st.best_config.clone().unwrap_or_default())
         ));
@@ -201,7 +201,7 @@ mod tests {
         assert!(rows[1].contains("yes, failed verification"), "{v}");
         assert!(
             v.contains(
-                "applied: trial 1 with its non-core knobs backed off to 64 %: /det=1.200cpu"
+                "applied: trial 1 with its non-core knobs backed off (as safe as all at 64 %): /det=1.200cpu"
             ),
             "{v}"
         );

@@ -424,10 +424,15 @@ impl KnobSpace {
     }
 
     /// Whether `y` gives the non-core apps at least what `z` does on every
-    /// knob that only restricts one (pure): then `y` is no safer for the core
+    /// knob that only restricts one, each as a config sets it (pure): with
+    /// the other knobs as in `z`, `y` is then no safer for the core
     /// constraints than `z` (see [`KnobDef::restricts_non_core`]), so once
-    /// `z` failed, `y` is no back-off from it.
+    /// `z` failed, `y` is no back-off from it. False for points of another
+    /// space.
     pub fn gives_no_less(&self, y: &[f64], z: &[f64]) -> bool {
+        if y.len() != self.knobs.len() || z.len() != self.knobs.len() {
+            return false;
+        }
         self.knobs
             .iter()
             .zip(y.iter().zip(z))

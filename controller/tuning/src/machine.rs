@@ -142,13 +142,29 @@ pub enum Candidate {
 
 /// The trial `index`, which failed verification, with every knob that only
 /// restricts a non-core app at `fraction` of the way from its minimum to the
-/// trial's value (see [`KnobSpace::backed_off`]); `step` counts from 1.
+/// trial's value (see [`KnobSpace::backed_off`]), or, when `shaped`, each at
+/// its own fraction, predicted at least as safe as that
+/// (`outcome::backoff_point`); `step` counts from 1.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct Backoff {
     pub index: usize,
     pub fraction: f64,
     #[serde(default)]
     pub step: u32,
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub shaped: bool,
+}
+
+impl Backoff {
+    /// How the trial was backed off, for events and conditions.
+    pub fn text(&self) -> String {
+        let pct = self.fraction * 100.0;
+        if self.shaped {
+            format!("backed off in a shape predicted as safe as all at {pct:.0} %")
+        } else {
+            format!("backed off to {pct:.0} %")
+        }
+    }
 }
 
 /// Where the run is. Serialised as the persisted resume point.

@@ -207,6 +207,7 @@ fn back_off(
             index,
             fraction: next,
             step: step + 1,
+            shaped: false,
         })
     } else {
         run.deferred_backoff.take()
@@ -219,7 +220,11 @@ fn back_off(
         fraction: next,
         ..
     } = backoff;
-    let Some((y, shaped)) = backoff_point(run, pick, next) else {
+    let Some(uniform) = run
+        .trials
+        .get(pick)
+        .and_then(|t| run.knobs.backed_off(&t.x, next))
+    else {
         return finish(run, env, defs, out);
     };
     let objective = |t: &TrialRecord| t.eval.objective.unwrap_or(0.0);
@@ -242,10 +247,11 @@ fn back_off(
         run.deferred_backoff = Some(backoff);
         return finish(run, env, defs, out);
     }
-    let how = match shaped {
+    let (y, shaped) = backoff_point(run, pick, uniform);
+    let how = match &shaped {
         None => format!("at {:.0} % of the way from their minimum", next * 100.0),
         Some(parts) => format!(
-            "as far back as {:.0} % of the way from their minimum promises by the models, shaped where they predict more objective ({parts})",
+            "shaped by the models ({parts} of the way from their minimum: predicted at least as safe for every core constraint as all at {:.0} %, with more objective)",
             next * 100.0
         ),
     };
@@ -256,7 +262,10 @@ fn back_off(
         ),
     ));
     let verify = State::VerifyApply {
-        candidate: Candidate::Backoff(backoff),
+        candidate: Candidate::Backoff(Backoff {
+            shaped: shaped.is_some(),
+            ..backoff
+        }),
         config: run.knobs.to_config(&y),
     };
     drain_first(run, env, verify)
@@ -266,8 +275,9 @@ fn back_off(
 /// [`KnobSpace::backoff_shapes`]).
 const SHAPES: usize = 4096;
 
-/// The point to verify when trial `pick` backs off to fraction `f`, and,
-/// when it is not the uniform back-off, how each knob was moved. The uniform
+/// The point to verify when trial `pick` backs off to `uniform` (every
+/// non-core knob at the same fraction `f`), and, when it is another point,
+/// how far each knob that moves was taken. The uniform
 /// back-off ([`KnobSpace::backed_off`]) moves every non-core knob by `f`,
 /// so it gives up as much of a knob that does not threaten the core as of
 /// one that does. With fitted models, each knob gets its own fraction
@@ -284,44 +294,39 @@ const SHAPES: usize = 4096;
 /// ([`KnobSpace::gives_no_less`], `Run::failed_backoffs`) is no candidate.
 /// Measured on real-nodelets (2026-11-25), before that rule: the second
 /// shaped back-off chose the failed trial itself.
-fn backoff_point(run: &mut Run, pick: usize, f: f64) -> Option<(Vec<f64>, Option<String>)> {
-    let x = run.trials.get(pick)?.x.clone();
-    let uniform = run.knobs.backed_off(&x, f)?;
-    let failed: Vec<&Vec<f64>> = std::iter::once(&x).chain(&run.failed_backoffs).collect();
-    let shapes: Vec<Vec<f64>> = run
-        .knobs
-        .backoff_shapes(&x, SHAPES)
-        .into_iter()
-        .filter(|y| !failed.iter().any(|z| run.knobs.gives_no_less(y, z)))
-        .collect();
-    let Some(opt) = run.optimizer.as_mut() else {
-        return Some((uniform, None));
+/// The uniform back-off stays the fallback: without models, without a
+/// complete trial to predict objective from, or when no shape qualifies.
+fn backoff_point(run: &Run, pick: usize, uniform: Vec<f64>) -> (Vec<f64>, Option<String>) {
+    let (Some(trial), Some(opt)) = (run.trials.get(pick), run.optimizer.as_ref()) else {
+        return (uniform, None);
     };
+    let x = &trial.x;
+    let failed: Vec<&Vec<f64>> = std::iter::once(x).chain(&run.failed_backoffs).collect();
+    let shapes = run
+        .knobs
+        .backoff_shapes(x, SHAPES)
+        .into_iter()
+        .filter(|y| !failed.iter().any(|z| run.knobs.gives_no_less(y, z)));
     let points: Vec<Vec<f64>> = std::iter::once(uniform.clone()).chain(shapes).collect();
     let Ok(preds) = opt.predict_many(&points) else {
-        return Some((uniform, None));
+        return (uniform, None);
     };
-    let constraints = &opt.problem().constraints;
-    let Some(best) = safest_best(&preds[0], &preds[1..], constraints) else {
-        return Some((uniform, None));
+    let Some(best) = safest_best(&preds[0], &preds[1..], &opt.problem().constraints) else {
+        return (uniform, None);
     };
     let y = points[best + 1].clone();
     if run.knobs.to_config(&y) == run.knobs.to_config(&uniform) {
-        return Some((uniform, None));
+        return (uniform, None);
     }
     let parts: Vec<String> = run
         .knobs
         .knobs
         .iter()
         .zip(x.iter().zip(&y))
-        .filter(|(k, _)| k.restricts_non_core)
-        .map(|(k, (&xv, &yv))| {
-            let span = xv - k.min;
-            let share = if span > 0.0 { (yv - k.min) / span } else { 1.0 };
-            format!("{} {:.0} %", k.name, share * 100.0)
-        })
+        .filter(|&(k, (&xv, _))| k.restricts_non_core && xv > k.min)
+        .map(|(k, (&xv, &yv))| format!("{} {:.0} %", k.name, (yv - k.min) / (xv - k.min) * 100.0))
         .collect();
-    Some((y, Some(parts.join(", "))))
+    (y, Some(parts.join(", ")))
 }
 
 /// The candidate to prefer to a reference point (pure): the one with the
@@ -542,12 +547,7 @@ pub fn after_tip(
 ) -> Option<State> {
     let (index, held) = match run.applied {
         Some(Candidate::Trial { index }) => (index, format!("trial {index}")),
-        Some(Candidate::Backoff(Backoff {
-            index, fraction, ..
-        })) => (
-            index,
-            format!("trial {index} backed off to {:.0} %", fraction * 100.0),
-        ),
+        Some(Candidate::Backoff(b)) => (b.index, format!("trial {} {}", b.index, b.text())),
         _ => return None,
     };
     if run.tip_retried {
@@ -614,9 +614,7 @@ pub fn verified(
                 "config from {} holds: satisfaction {:.1} %, objective {}",
                 match &candidate {
                     Candidate::Trial { index } => format!("trial {index}"),
-                    Candidate::Backoff(Backoff {
-                        index, fraction, ..
-                    }) => format!("trial {index} backed off to {:.0} %", fraction * 100.0),
+                    Candidate::Backoff(b) => format!("trial {} {}", b.index, b.text()),
                     Candidate::Baseline => "the baseline".into(),
                     Candidate::Library { profile } =>
                         format!("library profile {}", profile.metadata.name),
@@ -684,27 +682,19 @@ pub fn verified(
                 None => back_off(run, env, defs, index, 1.0, 0, &eval.constraints, out),
             }
         }
-        Candidate::Backoff(Backoff {
-            index,
-            fraction,
-            step,
-        }) => {
+        Candidate::Backoff(b) => {
             run.failed_backoffs.push(run.knobs.from_config(&config));
             out.push(warning(
                 Reason::VerificationFailed,
-                format!(
-                    "trial {index} backed off to {:.0} % {}",
-                    fraction * 100.0,
-                    shortfall(defs, &eval)
-                ),
+                format!("trial {} {} {}", b.index, b.text(), shortfall(defs, &eval)),
             ));
             back_off(
                 run,
                 env,
                 defs,
-                index,
-                fraction,
-                step,
+                b.index,
+                b.fraction,
+                b.step,
                 &eval.constraints,
                 out,
             )

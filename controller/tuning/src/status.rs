@@ -123,13 +123,12 @@ fn conditions(run: &Run) -> (Cond, Cond) {
                     Reason::Satisfied,
                     format!("applied the best trial ({index})"),
                 ),
-                Some(Candidate::Backoff(Backoff {
-                    index, fraction, ..
-                })) => (
+                Some(Candidate::Backoff(b)) => (
                     Reason::Satisfied,
                     format!(
-                        "applied the best trial ({index}) with its non-core knobs backed off to {:.0} %",
-                        fraction * 100.0
+                        "applied the best trial ({}) with its non-core knobs {}",
+                        b.index,
+                        b.text()
                     ),
                 ),
                 _ => (Reason::Satisfied, "the current config holds".to_string()),

@@ -769,6 +769,7 @@ fn effects_and_resume_points() {
         index: 1,
         fraction: 0.8,
         step: 1,
+        shaped: false,
     };
     let verifying = State::VerifyApply {
         candidate: Candidate::Backoff(backoff),
@@ -785,10 +786,21 @@ fn effects_and_resume_points() {
         beyond: 38.0,
         at_least: true,
     });
+    run.failed_backoffs.push(vec![0.5, 2.0]);
     let back: Run = serde_json::from_str(&serde_json::to_string(&run).unwrap()).unwrap();
     assert_eq!(back.state, verifying);
     assert_eq!(back.deferred_backoff, Some(backoff));
     assert_eq!(back.edges, run.edges);
+    assert_eq!(back.failed_backoffs, run.failed_backoffs);
+    // A shaped back-off says so; an unshaped one is written as before.
+    let shaped = Backoff {
+        shaped: true,
+        ..backoff
+    };
+    assert_eq!(
+        serde_json::to_value(Candidate::Backoff(shaped)).unwrap()["shaped"],
+        serde_json::json!(true)
+    );
 }
 
 #[test]
