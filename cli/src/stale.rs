@@ -41,20 +41,34 @@ pub fn stale_roots<'a>(
     out
 }
 
-/// Removes the stale private roots of this host's CPU hierarchy (the one the
-/// agent uses: v1 `cpu`, else cgroup2): SIGKILL to what still runs in their
-/// node cgroups, then the node cgroups and the root. Returns each stale root
-/// with what became of it; one that cannot be removed does not stop the rest.
+/// Removes the stale private roots of this host's CPU hierarchies (those the
+/// agent uses: v1 `cpu` and `cpuacct`, else cgroup2): SIGKILL to what still
+/// runs in their node cgroups, then the node cgroups and the root. A root
+/// left in `cpuacct` alone (a close killed halfway) is found too. Returns
+/// each stale root with what became of it; one that cannot be removed does
+/// not stop the rest.
 pub fn sweep() -> anyhow::Result<Vec<(String, anyhow::Result<()>)>> {
     let layout = Layout::detect()?;
-    let Some(mount) = layout.v1_cpu.clone().or_else(|| layout.unified.clone()) else {
-        return Ok(Vec::new());
+    let mounts: Vec<&Path> = if layout.v1_cpu.is_some() {
+        [&layout.v1_cpu, &layout.v1_cpuacct]
+            .into_iter()
+            .flatten()
+            .map(|p| p.as_path())
+            .collect()
+    } else {
+        layout.unified.iter().map(|p| p.as_path()).collect()
     };
-    let names: Vec<String> = std::fs::read_dir(&mount)?
-        .filter_map(|e| e.ok())
-        .filter(|e| e.file_type().is_ok_and(|t| t.is_dir()))
-        .filter_map(|e| e.file_name().into_string().ok())
-        .collect();
+    let mut names: Vec<String> = Vec::new();
+    for mount in mounts {
+        names.extend(
+            std::fs::read_dir(mount)?
+                .filter_map(|e| e.ok())
+                .filter(|e| e.file_type().is_ok_and(|t| t.is_dir()))
+                .filter_map(|e| e.file_name().into_string().ok()),
+        );
+    }
+    names.sort();
+    names.dedup();
     let stale = stale_roots(names.iter().map(String::as_str), |pid| {
         Path::new("/proc").join(pid.to_string()).exists()
     });
@@ -102,6 +116,10 @@ mod tests {
 
     use super::*;
 
+    /// Each test's sweep removes every dead owner's root, the other test's
+    /// too: they take turns.
+    static SWEEPING: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
     /// Kills the stand-in and removes the root if the test fails halfway.
     struct Leftover(Child, Layout, String);
 
@@ -115,6 +133,7 @@ mod tests {
 
     #[test]
     fn a_dead_owners_root_is_killed_and_removed() {
+        let _turn = SWEEPING.lock().unwrap_or_else(|e| e.into_inner());
         let layout = Layout::detect().unwrap();
         // A pid whose process is gone, as a SIGKILLed bench's.
         let mut owner = Command::new("true").spawn().unwrap();
@@ -152,6 +171,38 @@ mod tests {
             .or_else(|| left.1.unified.clone())
             .unwrap();
         assert!(!mount.join(&root).exists(), "{root} still exists");
+    }
+
+    #[test]
+    fn a_root_left_in_cpuacct_alone_is_removed() {
+        let _turn = SWEEPING.lock().unwrap_or_else(|e| e.into_inner());
+        let layout = Layout::detect().unwrap();
+        let (cpu, acct) = (layout.v1_cpu.clone(), layout.v1_cpuacct.clone());
+        let separate = cpu.is_some() && acct.is_some() && cpu != acct;
+        if !configbot_test_support::require(
+            &format!("separate v1 cpu and cpuacct hierarchies (cpu {cpu:?}, cpuacct {acct:?})"),
+            separate,
+        ) {
+            return;
+        }
+        let (cpu, acct) = (cpu.unwrap(), acct.unwrap());
+        let mut owner = Command::new("true").spawn().unwrap();
+        let pid = owner.id();
+        owner.wait().unwrap();
+        let root = private_root(pid);
+        let node = NodeName::new("/half_removed").unwrap();
+        let backend = open_backend(&layout, SubtreeRoot::new(&root).unwrap()).unwrap();
+        backend.create(&node).unwrap();
+        // A close killed halfway: the cpu side went, the cpuacct side stayed.
+        std::fs::remove_dir(cpu.join(&root).join(node.dir_name())).unwrap();
+        std::fs::remove_dir(cpu.join(&root)).unwrap();
+
+        let swept = sweep().unwrap();
+        assert!(
+            swept.iter().any(|(r, done)| *r == root && done.is_ok()),
+            "{root} not swept: {swept:?}"
+        );
+        assert!(!acct.join(&root).exists(), "{root} still in cpuacct");
     }
 
     #[test]

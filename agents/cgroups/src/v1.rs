@@ -65,8 +65,17 @@ impl CgroupBackend for V1Backend {
         self.dirs().iter().all(|d| d.join(node.dir_name()).is_dir())
     }
 
+    /// Those in either hierarchy: a node removed halfway (its `cpu`
+    /// directory gone, its `cpuacct` one not) is still listed, so that it
+    /// can be removed.
     fn nodes(&self) -> Result<Vec<NodeName>> {
-        list_nodes(&self.cpu)
+        let mut out = Vec::new();
+        for d in self.dirs() {
+            out.extend(list_nodes(d)?);
+        }
+        out.sort();
+        out.dedup();
+        Ok(out)
     }
 
     fn add_pid(&self, node: &NodeName, pid: u32) -> Result<()> {
@@ -125,8 +134,27 @@ impl CgroupBackend for V1Backend {
         Ok(s)
     }
 
+    /// Those in either hierarchy (the same ones, as `add_pid` moves a
+    /// process into both): of a node removed halfway, what runs in the part
+    /// that is left. An error when the node is in neither.
     fn pids(&self, node: &NodeName) -> Result<Vec<u32>> {
-        read_ids(&self.cpu_file(node, "cgroup.procs"))
+        let mut out: Option<Vec<u32>> = None;
+        let mut missing = None;
+        for d in self.dirs() {
+            match read_ids(&d.join(node.dir_name()).join("cgroup.procs")) {
+                Ok(ids) => out.get_or_insert_with(Vec::new).extend(ids),
+                Err(e) => missing = Some(e),
+            }
+        }
+        match (out, missing) {
+            (Some(mut ids), _) => {
+                ids.sort_unstable();
+                ids.dedup();
+                Ok(ids)
+            }
+            (None, Some(e)) => Err(e),
+            (None, None) => Ok(Vec::new()),
+        }
     }
 
     fn tids(&self, node: &NodeName) -> Result<Vec<u32>> {
