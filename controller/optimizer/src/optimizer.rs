@@ -794,10 +794,15 @@ impl Optimizer {
         }
     }
 
-    /// What the models predict at each config (knob units), from one fit:
-    /// for choosing among configs that were not measured.
-    pub fn predict_many(&self, xs: &[Vec<f64>]) -> Result<Vec<Prediction>> {
+    /// What the models predict at each config (knob units), from one fit
+    /// of the observations and `extra` (measurements the search itself
+    /// does not count, such as verifications): for choosing among configs
+    /// that were not measured.
+    pub fn predict_many(&self, extra: &[Observation], xs: &[Vec<f64>]) -> Result<Vec<Prediction>> {
         let mut copy = self.clone();
+        for o in extra {
+            copy.tell(o.clone())?;
+        }
         let models = copy.fit_models()?;
         let us: Vec<Vec<f64>> = xs.iter().map(|x| self.problem.space.to_unit(x)).collect();
         Ok(models.predictions(&self.problem, &us))

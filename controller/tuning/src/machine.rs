@@ -411,12 +411,13 @@ pub struct Run {
     /// [`super::search::best_clear_trial`]).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub edges: Vec<Edge>,
-    /// The points of this run's back-offs that failed verification (all of
-    /// the first rejected trial): a shaped back-off never gives the non-core
-    /// apps as much as one of them, or as the trial itself, on every knob
-    /// (see `outcome::backoff_point`).
+    /// This run's failed verifications of the trial that backs off (the
+    /// first rejected) and of its back-offs, as measured: the models that
+    /// shape a back-off learn from them, and a shaped back-off never gives
+    /// the non-core apps as much on every knob as one of them (see
+    /// `outcome::backoff_point`).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
-    pub failed_backoffs: Vec<Vec<f64>>,
+    pub failed_verifications: Vec<TrialRecord>,
 }
 
 impl Run {
@@ -463,7 +464,7 @@ impl Run {
             corner_trial: None,
             deferred_backoff: None,
             edges: Vec::new(),
-            failed_backoffs: Vec::new(),
+            failed_verifications: Vec::new(),
         }
     }
 
@@ -769,7 +770,7 @@ pub fn step(mut run: Run, input: Input, env: &Env<'_>) -> (Run, Vec<Output>) {
                     run.corner_trial = None;
                     run.deferred_backoff = None;
                     run.edges.clear();
-                    run.failed_backoffs.clear();
+                    run.failed_verifications.clear();
                     run.optimizer = None;
                     run.baseline = None;
                     // A violation of a config that held means the workload

@@ -297,7 +297,7 @@ pub fn scalarize(
 }
 
 /// Everything the loop derives from one measurement.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct Evaluation {
     /// Whole-window mean of every metric.
     pub means: BTreeMap<String, f64>,

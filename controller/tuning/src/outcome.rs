@@ -288,11 +288,13 @@ const SHAPES: usize = 4096;
 /// own process) from 12 Hz to 6 Hz of its 15 Hz cap with the vision
 /// manager's input, which alone moved the core rate (least squares over 44
 /// trials: −16 Hz over the vision input's range, −2.5 over brightness's).
-/// The models learn from trials, not verifications, so they may still call
-/// the failed trial safe: a shape that gives the non-core apps on every knob
-/// as much as the trial or one of its failed back-offs
-/// ([`KnobSpace::gives_no_less`], `Run::failed_backoffs`) is no candidate.
-/// Measured on real-nodelets (2026-11-25), before that rule: the second
+/// The models that shape it are the search's, fitted once more with the
+/// failed verifications added (`Run::failed_verifications`: the trial's
+/// and its back-offs'), so that they learn where the longer measurement
+/// fell short; and a shape that gives the non-core apps on every knob as
+/// much as the trial or one of its failed back-offs
+/// ([`KnobSpace::gives_no_less`]) is no candidate, whatever they predict.
+/// Measured on real-nodelets (2026-11-25), before both rules: the second
 /// shaped back-off chose the failed trial itself.
 /// The uniform back-off stays the fallback: without models, without a
 /// complete trial to predict objective from, or when no shape qualifies.
@@ -301,14 +303,17 @@ fn backoff_point(run: &Run, pick: usize, uniform: Vec<f64>) -> (Vec<f64>, Option
         return (uniform, None);
     };
     let x = &trial.x;
-    let failed: Vec<&Vec<f64>> = std::iter::once(x).chain(&run.failed_backoffs).collect();
+    let failed: Vec<&Vec<f64>> = std::iter::once(x)
+        .chain(run.failed_verifications.iter().map(|v| &v.x))
+        .collect();
     let shapes = run
         .knobs
         .backoff_shapes(x, SHAPES)
         .into_iter()
         .filter(|y| !failed.iter().any(|z| run.knobs.gives_no_less(y, z)));
     let points: Vec<Vec<f64>> = std::iter::once(uniform.clone()).chain(shapes).collect();
-    let Ok(preds) = opt.predict_many(&points) else {
+    let verified: Vec<Observation> = run.failed_verifications.iter().map(observation).collect();
+    let Ok(preds) = opt.predict_many(&verified, &points) else {
         return (uniform, None);
     };
     let Some(best) = safest_best(&preds[0], &preds[1..], &opt.problem().constraints) else {
@@ -673,6 +678,16 @@ pub fn verified(
             ));
             run.edges.extend(edges);
             run.rejected.push(index);
+            if run.rejected.first() == Some(&index)
+                && let Some(t) = run.trials.get(index)
+            {
+                run.failed_verifications.push(TrialRecord {
+                    x: t.x.clone(),
+                    config: config.clone(),
+                    eval: eval.clone(),
+                    censored: false,
+                });
+            }
             match run.tipped.take() {
                 // The next best after a tip failed too: the workload changed.
                 Some(t) => State::Observe {
@@ -683,7 +698,12 @@ pub fn verified(
             }
         }
         Candidate::Backoff(b) => {
-            run.failed_backoffs.push(run.knobs.from_config(&config));
+            run.failed_verifications.push(TrialRecord {
+                x: run.knobs.from_config(&config),
+                config,
+                eval: eval.clone(),
+                censored: false,
+            });
             out.push(warning(
                 Reason::VerificationFailed,
                 format!("trial {} {} {}", b.index, b.text(), shortfall(defs, &eval)),

@@ -786,12 +786,17 @@ fn effects_and_resume_points() {
         beyond: 38.0,
         at_least: true,
     });
-    run.failed_backoffs.push(vec![0.5, 2.0]);
+    run.failed_verifications.push(TrialRecord {
+        config: cfg(),
+        x: vec![0.5, 2.0],
+        eval: Default::default(),
+        censored: false,
+    });
     let back: Run = serde_json::from_str(&serde_json::to_string(&run).unwrap()).unwrap();
     assert_eq!(back.state, verifying);
     assert_eq!(back.deferred_backoff, Some(backoff));
     assert_eq!(back.edges, run.edges);
-    assert_eq!(back.failed_backoffs, run.failed_backoffs);
+    assert_eq!(back.failed_verifications, run.failed_verifications);
     // A shaped back-off says so; an unshaped one is written as before.
     let shaped = Backoff {
         shaped: true,
