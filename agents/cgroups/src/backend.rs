@@ -30,7 +30,8 @@ pub trait CgroupBackend: Debug + Send + Sync {
     fn create(&self, node: &NodeName) -> Result<()>;
     /// Whether the node's cgroup exists.
     fn exists(&self, node: &NodeName) -> bool;
-    /// Node cgroups that currently exist below the subtree (for re-adoption).
+    /// Node cgroups that currently exist below the subtree (for re-adoption
+    /// and removal; on v1, those in either hierarchy).
     fn nodes(&self) -> Result<Vec<NodeName>>;
     /// Moves a process with all its threads into the node's cgroup. Children it
     /// forks later start in the same cgroup.
@@ -44,7 +45,8 @@ pub trait CgroupBackend: Debug + Send + Sync {
     fn cpu_max(&self, node: &NodeName) -> Result<CpuMax>;
     /// Cumulative usage, throttling and (v2) pressure.
     fn stats(&self, node: &NodeName) -> Result<CpuStats>;
-    /// Process ids in the node's cgroup.
+    /// Process ids in the node's cgroup (on v1, in either hierarchy: of a
+    /// node removed halfway, what runs in what is left of it).
     fn pids(&self, node: &NodeName) -> Result<Vec<u32>>;
     /// Thread ids in the node's cgroup.
     fn tids(&self, node: &NodeName) -> Result<Vec<u32>>;

@@ -60,3 +60,10 @@ pub enum Error {
         source: Box<Error>,
     },
 }
+
+impl Error {
+    /// A read of a file that does not exist (its cgroup is gone or was never made).
+    pub fn is_not_found(&self) -> bool {
+        matches!(self, Error::Read { source, .. } if source.kind() == std::io::ErrorKind::NotFound)
+    }
+}

@@ -136,17 +136,22 @@ impl CgroupBackend for V1Backend {
 
     /// Those in either hierarchy (the same ones, as `add_pid` moves a
     /// process into both): of a node removed halfway, what runs in the part
-    /// that is left. An error when the node is in neither.
+    /// that is left. Only a missing directory counts as absent; the error
+    /// (the `cpu` one first) when the node is in neither, or when one
+    /// cannot be read for another reason.
     fn pids(&self, node: &NodeName) -> Result<Vec<u32>> {
         let mut out: Option<Vec<u32>> = None;
-        let mut missing = None;
+        let mut absent = None;
         for d in self.dirs() {
             match read_ids(&d.join(node.dir_name()).join("cgroup.procs")) {
                 Ok(ids) => out.get_or_insert_with(Vec::new).extend(ids),
-                Err(e) => missing = Some(e),
+                Err(e) if e.is_not_found() => {
+                    absent.get_or_insert(e);
+                }
+                Err(e) => return Err(e),
             }
         }
-        match (out, missing) {
+        match (out, absent) {
             (Some(mut ids), _) => {
                 ids.sort_unstable();
                 ids.dedup();
