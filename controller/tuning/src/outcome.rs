@@ -423,10 +423,9 @@ pub fn edges_after(defs: &[MetricDef], trial: &[f64], verify: &[f64]) -> Vec<Edg
         .map(|(j, (d, (&t, &v)))| (j, d, t, v))
         .collect();
     let failed: Vec<_> = core.iter().filter(|(_, d, _, v)| !d.holds(*v)).collect();
-    let relative = |d: &MetricDef, v: f64| d.margin(v) / d.target.abs().max(f64::MIN_POSITIVE);
     let chosen = if failed.is_empty() {
         core.iter()
-            .min_by(|a, b| relative(a.1, a.3).total_cmp(&relative(b.1, b.3)))
+            .min_by(|a, b| relative_margin(a.1, a.3).total_cmp(&relative_margin(b.1, b.3)))
             .into_iter()
             .collect()
     } else {
@@ -443,6 +442,36 @@ pub fn edges_after(defs: &[MetricDef], trial: &[f64], verify: &[f64]) -> Vec<Edg
             }
         })
         .collect()
+}
+
+/// How far `v` is inside `d`'s target, relative to the target (negative
+/// when it misses).
+fn relative_margin(d: &MetricDef, v: f64) -> f64 {
+    d.margin(v) / d.target.abs().max(f64::MIN_POSITIVE)
+}
+
+/// A failed verification as the models that shape a back-off are told it
+/// (pure): as measured when some core constraint's bound missed; when only
+/// windows missed (every bound held), the constraint nearest its target
+/// (relative to it, as in [`edges_after`]) at its target, so that the
+/// models do not learn the config that failed as a safe one.
+pub fn as_failed(defs: &[MetricDef], mut eval: measure::Evaluation) -> measure::Evaluation {
+    let core: Vec<&MetricDef> = defs.iter().filter(|d| d.core).collect();
+    if !core.iter().zip(&eval.constraints).all(|(d, &v)| d.holds(v)) {
+        return eval;
+    }
+    let nearest = core
+        .iter()
+        .zip(&eval.constraints)
+        .enumerate()
+        .min_by(|(_, (a, va)), (_, (b, vb))| {
+            relative_margin(a, **va).total_cmp(&relative_margin(b, **vb))
+        })
+        .map(|(j, (d, _))| (j, d.target));
+    if let Some((j, target)) = nearest {
+        eval.constraints[j] = target;
+    }
+    eval
 }
 
 /// `edges` for an event: "cmd above 36.20".
@@ -684,7 +713,7 @@ pub fn verified(
                 run.failed_verifications.push(TrialRecord {
                     x: t.x.clone(),
                     config: config.clone(),
-                    eval: eval.clone(),
+                    eval: as_failed(defs, eval.clone()),
                     censored: false,
                 });
             }
@@ -701,7 +730,7 @@ pub fn verified(
             run.failed_verifications.push(TrialRecord {
                 x: run.knobs.from_config(&config),
                 config,
-                eval: eval.clone(),
+                eval: as_failed(defs, eval.clone()),
                 censored: false,
             });
             out.push(warning(

@@ -806,6 +806,8 @@ fn effects_and_resume_points() {
         serde_json::to_value(Candidate::Backoff(shaped)).unwrap()["shaped"],
         serde_json::json!(true)
     );
+    let unshaped = serde_json::to_value(Candidate::Backoff(backoff)).unwrap();
+    assert!(unshaped.get("shaped").is_none(), "{unshaped}");
 }
 
 #[test]

@@ -875,6 +875,24 @@ fn a_trial_that_measured_more_than_a_back_off_promises_is_verified_instead() {
 }
 
 #[test]
+fn a_verification_that_missed_only_windows_is_told_as_at_its_target() {
+    use crate::measure::Evaluation;
+    use crate::outcome::as_failed;
+    let (st, sp) = (stack(), spec(1.0, 5));
+    let env = env(&st, &sp);
+    let defs = env.defs();
+    let eval = |bound: f64| Evaluation {
+        constraints: vec![bound],
+        objectives: vec![2.0],
+        ..Default::default()
+    };
+    // The /cmd_vel bound (target 35) missed: the models learn it as measured.
+    assert_eq!(as_failed(&defs, eval(33.0)), eval(33.0));
+    // Every bound held, yet windows missed: not a safe point, but at the target.
+    assert_eq!(as_failed(&defs, eval(36.5)), eval(35.0));
+}
+
+#[test]
 fn a_failed_verification_leaves_an_edge_that_a_trial_must_clear_to_be_verified_instead() {
     use crate::outcome::edges_after;
     let (st, sp) = (stack(), spec(1.0, 5));
