@@ -131,17 +131,13 @@ mod tests {
         }
     }
 
-    /// Removes test cgroups (children first) if the test fails halfway.
+    /// Removes test cgroups (and what runs in them) if the test fails halfway.
     struct RemoveOnDrop(Vec<std::path::PathBuf>);
 
     impl Drop for RemoveOnDrop {
         fn drop(&mut self) {
-            for dir in &self.0 {
-                for child in std::fs::read_dir(dir).into_iter().flatten().flatten() {
-                    let _ = std::fs::remove_dir(child.path());
-                }
-                let _ = std::fs::remove_dir(dir);
-            }
+            use configbot_test_support::cgroup::{REMOVE_TIMEOUT, remove_tree};
+            let _ = remove_tree(&self.0, REMOVE_TIMEOUT);
         }
     }
 
