@@ -133,8 +133,6 @@ struct LimitedDetector {
     _camera: Proc,
     listener: Proc,
     detector: Proc,
-    /// The detector's threads once the listener was ready, before any frame.
-    idle_threads: usize,
     _master: Master,
     cg: CpuCgroup,
 }
@@ -167,14 +165,12 @@ fn detector_under_limit(extra: &[&str], limited_from_start: bool) -> Option<Limi
     wait_until("the listener", Duration::from_secs(20), POLL, || {
         listener.has_line("ready")
     });
-    let idle_threads = threads(detector.pid());
     let spec = format!("{img}:10:1024");
     let camera = env.simnode(&["--name", &t("camera"), "--publish", &spec]);
     Some(LimitedDetector {
         _camera: camera,
         listener,
         detector,
-        idle_threads,
         _master: m,
         cg,
     })
@@ -185,7 +181,8 @@ fn thread_per_message_threads_pile_up_under_a_cpu_limit() {
     let Some(d) = detector_under_limit(&[], false) else {
         return;
     };
-    let (listener, idle) = (&d.listener, d.idle_threads);
+    let listener = &d.listener;
+    let msg_threads = |pid| threads_named(pid, "simnode-msg");
     let pid = d.detector.pid();
 
     // Unlimited: 10 Hz × 40 ms = 0.4 CPU, each message done before the next.
@@ -193,7 +190,7 @@ fn thread_per_message_threads_pile_up_under_a_cpu_limit() {
     let mut peak_free = 0;
     let from = Instant::now();
     while from.elapsed() < Duration::from_secs(2) {
-        peak_free = peak_free.max(threads(pid) - idle);
+        peak_free = peak_free.max(msg_threads(pid));
         std::thread::sleep(Duration::from_millis(20));
     }
     let free = listener.msgs_between(from, Instant::now());
@@ -204,7 +201,7 @@ fn thread_per_message_threads_pile_up_under_a_cpu_limit() {
     let mut peak_limited = 0;
     let from = Instant::now();
     while from.elapsed() < Duration::from_secs(4) {
-        peak_limited = peak_limited.max(threads(pid) - idle);
+        peak_limited = peak_limited.max(msg_threads(pid));
         std::thread::sleep(Duration::from_millis(20));
     }
     let limited = listener.msgs_between(from, Instant::now());
@@ -215,7 +212,7 @@ fn thread_per_message_threads_pile_up_under_a_cpu_limit() {
     };
     let (free_rate, lim_rate) = (free.len() as f64 / 2.0, limited.len() as f64 / 4.0);
     eprintln!(
-        "detector: unlimited {free_rate:.1} Hz, {peak_free} extra threads, median latency {:.0} ms; 0.2 CPU: {lim_rate:.1} Hz, {peak_limited} extra threads, median latency {:.0} ms",
+        "detector: unlimited {free_rate:.1} Hz, {peak_free} message threads, median latency {:.0} ms; 0.2 CPU: {lim_rate:.1} Hz, {peak_limited} message threads, median latency {:.0} ms",
         med(&free),
         med(&limited)
     );
@@ -223,9 +220,13 @@ fn thread_per_message_threads_pile_up_under_a_cpu_limit() {
         free_rate >= 7.0,
         "unlimited detector {free_rate:.1} Hz of 10"
     );
+    // The cap (10) counts callbacks running; a thread frees its slot just
+    // before it exits, and a throttled cgroup can hold it in that gap while
+    // the next message's thread starts (CI once saw 11). Two finishing in
+    // one throttled period is the margin.
     assert!(
-        (8..=10).contains(&peak_limited),
-        "threads under the limit: {peak_limited}"
+        (8..=12).contains(&peak_limited),
+        "message threads under the limit: {peak_limited} (cap 10)"
     );
     assert!(
         peak_limited > peak_free + 3,
