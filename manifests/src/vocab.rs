@@ -197,7 +197,8 @@ vocabulary! {
         Trial,
         /// A trial's config settled later than the minimum settle time.
         SettledLate,
-        /// A trial is near a constraint's boundary and is measured longer.
+        /// A trial is near a constraint's boundary, or a verification's
+        /// margin is short of the bar: it is measured longer.
         NearBoundary,
         /// A trial meets every target with every objective capped.
         ObjectivesCapped,

@@ -26,6 +26,13 @@
 //! - **Near the boundary** ([`near_boundary`]): a measurement whose bound
 //!   misses but whose windows mostly hold is measured longer instead of
 //!   being discarded, up to [`BOUNDARY_WINDOWS`] windows or more.
+//! - **Short of the bar** ([`short_of_bar`]): a verification that holds by
+//!   the rule above but whose margin is less than [`BAR_Z`] sd is measured
+//!   on to [`BAR_WINDOWS`] windows, the length of the minute a user (or the
+//!   bench) judges it by, and must hold there. The 2.33·sd bound predicts
+//!   about one miss per 100 windows, while a minute at ≥ 99.5 % allows
+//!   none in 60: on the real two-path stack two configs verified over 30
+//!   windows, every one on target, then missed one of 60.
 
 use std::collections::BTreeMap;
 
@@ -34,8 +41,8 @@ use configbot_manifests::performance_spec::{Bound, Scalarization};
 use configbot_manifests::{PerformanceSpecSpec, RobotStackSpec};
 use serde::{Deserialize, Serialize};
 
-/// One-sided 99 % normal quantile.
-const Z99: f64 = 2.33;
+/// One-sided 99 % normal quantile: the bound a trial and a verification meet.
+pub const BOUND_Z: f64 = 2.33;
 /// How many 1 s windows a measurement near the boundary is extended to: ten
 /// windows estimate the spread well enough for the bound to tell (see
 /// [`near_boundary`]).
@@ -43,6 +50,15 @@ pub const BOUNDARY_WINDOWS: usize = 10;
 /// A measurement is near the boundary when its bound misses but at least
 /// this share of its windows hold.
 pub const NEAR_SHARE: f64 = 0.8;
+/// The windows of the minute a verified config is judged by.
+pub const BAR_WINDOWS: usize = 60;
+/// The margin, in sd of the windows, at which a normal config misses none of
+/// [`BAR_WINDOWS`] windows nine times in ten: a miss per window of at most
+/// 1 − 0.9^(1/60) = 0.18 %, the one-sided quantile 2.92. A config with less
+/// is not rejected for it (the normal tail of 30 windows is too noisy to
+/// judge by alone: a tolerance bound of 3.16·sd rejected the real nodelet
+/// stack's best region); it is measured over the whole minute instead.
+pub const BAR_Z: f64 = 2.92;
 
 /// A metric of the spec, resolved against the stack.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -231,9 +247,9 @@ fn mean_sd(v: &[f64]) -> (f64, f64) {
 pub fn robust_value(def: &MetricDef, values: &[f64]) -> f64 {
     let (mean, sd) = mean_sd(values);
     if def.at_least {
-        mean - Z99 * sd
+        mean - BOUND_Z * sd
     } else {
-        mean + Z99 * sd
+        mean + BOUND_Z * sd
     }
 }
 
@@ -253,6 +269,20 @@ pub fn near_boundary(defs: &[MetricDef], report: &MeasureReport) -> bool {
             && v.iter().filter(|&&x| d.holds(x)).count() as f64 >= NEAR_SHARE * v.len() as f64
     });
     misses && mostly
+}
+
+/// Whether a measurement shorter than [`BAR_WINDOWS`] windows leaves some
+/// core constraint less than [`BAR_Z`] sd from its target (pure), so only a
+/// whole minute can tell whether it holds one.
+pub fn short_of_bar(defs: &[MetricDef], report: &MeasureReport) -> bool {
+    defs.iter().filter(|d| d.core).any(|d| {
+        let v = series(report, &d.probe).unwrap_or(&[]);
+        if v.is_empty() || v.len() >= BAR_WINDOWS {
+            return false;
+        }
+        let (mean, sd) = mean_sd(v);
+        d.margin(mean) < BAR_Z * sd
+    })
 }
 
 /// Normalised, capped value of one objective.
@@ -467,6 +497,33 @@ mod tests {
         assert_eq!(e.means["cmd"], 36.0);
         assert!(!e.feasible, "mean meets the target, sub-windows do not");
         assert_eq!(e.satisfaction, 0.6);
+    }
+
+    #[test]
+    fn a_margin_short_of_the_bar_is_told_until_the_minute_is_measured() {
+        let defs = vec![def("cmd", true, true, 25.0), def("det", false, true, 5.0)];
+        // Mean 29, sd 1.44: 2.33 sd (3.4) clears the target's 4 Hz, 2.92 sd (4.2) does not.
+        let close: Vec<f64> = [27.0, 31.0, 29.0, 28.0, 30.0].repeat(6);
+        let r = report(&[("cmd", &close), ("det", &[1.0; 30])]);
+        assert!(evaluate(&defs, &r, Scalarization::MaxMin).feasible);
+        assert!(short_of_bar(&defs, &r));
+        // Half the spread: 2.92 sd clears it.
+        let wide_margin: Vec<f64> = [28.0, 30.0, 29.0, 28.5, 29.5].repeat(6);
+        let r = report(&[("cmd", &wide_margin), ("det", &[1.0; 30])]);
+        assert!(!short_of_bar(&defs, &r));
+        // A whole minute is judged by its windows, not told again.
+        let minute = close.repeat(2);
+        let r = report(&[("cmd", &minute), ("det", &[1.0; 60])]);
+        assert!(!short_of_bar(&defs, &r));
+        // Only core constraints count; at-most ones by their upper side.
+        let defs = vec![def("det", false, true, 5.0), def("lat", true, false, 0.1)];
+        let lat = [0.05, 0.07, 0.06, 0.05, 0.07].repeat(6);
+        let r = report(&[("det", &[1.0; 30]), ("lat", &lat)]);
+        assert!(!short_of_bar(&defs, &r));
+        let lat = [0.05, 0.085, 0.06, 0.05, 0.075].repeat(6);
+        let r = report(&[("det", &[1.0; 30]), ("lat", &lat)]);
+        assert!(evaluate(&defs, &r, Scalarization::MaxMin).feasible);
+        assert!(short_of_bar(&defs, &r));
     }
 
     #[test]

@@ -616,19 +616,26 @@ pub fn shortfall(defs: &[MetricDef], eval: &measure::Evaluation) -> String {
     let core = defs.iter().filter(|d| d.core);
     match core.zip(&eval.constraints).find(|(d, v)| !d.holds(**v)) {
         Some((d, v)) => format!(
-            "held in {held}, but their spread predicts misses: {} of {:.1} by mean {} 2.33·sd, target {}",
+            "held in {held}, but their spread predicts misses: {} of {:.1} by mean {} {}·sd, target {}",
             d.name,
             v,
             if d.at_least { "−" } else { "+" },
+            measure::BOUND_Z,
             d.target_text()
         ),
         None => format!("held in {held}"),
     }
 }
 
-/// A verification measured: monitor the candidate, or try the next one.
-/// It holds when ≥ [`SATISFIED`] of its windows held and every core
-/// constraint's bound holds over them (the same rule as a trial's).
+/// Whether a verification's measurement holds: ≥ [`SATISFIED`] of its
+/// windows held and every core constraint's bound holds over them (the same
+/// rule as a trial's).
+pub fn holds(eval: &measure::Evaluation) -> bool {
+    eval.satisfaction >= SATISFIED && eval.feasible
+}
+
+/// A verification measured: monitor the candidate when it [`holds`], or try
+/// the next one.
 #[allow(clippy::too_many_arguments)]
 pub fn verified(
     run: &mut Run,
@@ -641,18 +648,12 @@ pub fn verified(
 ) -> State {
     let eval = measure::evaluate(defs, r, env.spec.tuning.scalarization);
     let sat = eval.satisfaction;
-    if sat >= SATISFIED && eval.feasible {
+    if holds(&eval) {
         out.push(normal(
             Reason::Satisfied,
             format!(
                 "config from {} holds: satisfaction {:.1} %, objective {}",
-                match &candidate {
-                    Candidate::Trial { index } => format!("trial {index}"),
-                    Candidate::Backoff(b) => format!("trial {} {}", b.index, b.text()),
-                    Candidate::Baseline => "the baseline".into(),
-                    Candidate::Library { profile } =>
-                        format!("library profile {}", profile.metadata.name),
-                },
+                candidate.text(),
                 sat * 100.0,
                 eval.objective
                     .map_or("-".to_string(), |o| format!("{o:.3}"))

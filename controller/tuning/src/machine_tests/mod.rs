@@ -151,6 +151,14 @@ fn name(s: &State) -> &'static str {
     }
 }
 
+/// The message of an event output.
+fn event_text(o: &Output) -> &str {
+    match o {
+        Output::Event { message, .. } => message,
+        o => panic!("not an event: {o:?}"),
+    }
+}
+
 fn reasons(out: &[Output]) -> Vec<&str> {
     out.iter()
         .map(|o| match o {
@@ -387,6 +395,7 @@ fn transition_table() {
             State::Verify {
                 candidate: Candidate::Trial { index: 0 },
                 config: cfg(),
+                so_far: None,
             },
             report(&[40.0; 10], 5.0),
             false,
@@ -399,6 +408,7 @@ fn transition_table() {
             State::Verify {
                 candidate: Candidate::Library { profile: profile() },
                 config: cfg(),
+                so_far: None,
             },
             report(&[20.0; 10], 5.0),
             false,
@@ -411,6 +421,7 @@ fn transition_table() {
             State::Verify {
                 candidate: Candidate::Library { profile: profile() },
                 config: cfg(),
+                so_far: None,
             },
             report(&[20.0; 10], 5.0),
             false,
@@ -518,6 +529,7 @@ fn transition_table() {
             State::Verify {
                 candidate: Candidate::Trial { index: 0 },
                 config: cfg(),
+                so_far: None,
             },
             context_changed(&["/det"]),
             false,
@@ -747,6 +759,7 @@ fn effects_and_resume_points() {
     let resumed = with(State::Verify {
         candidate: Candidate::Baseline,
         config: cfg(),
+        so_far: None,
     })
     .resumed();
     assert_eq!(name(&resumed.state), "VerifyApply");
