@@ -394,16 +394,16 @@ pub async fn serve_unix(
     limits::serve(listener, router(rt, None)).await
 }
 
-/// Serves the API on TCP; a non-empty bearer token is mandatory.
+/// Serves the API on TCP; a bearer token that is not blank is mandatory.
 pub async fn serve_tcp(
     rt: NodeRuntime,
     listener: tokio::net::TcpListener,
     token: String,
 ) -> std::io::Result<()> {
-    if token.is_empty() {
+    if token.trim().is_empty() {
         return Err(std::io::Error::new(
             std::io::ErrorKind::InvalidInput,
-            "tcp listener needs a bearer token",
+            "tcp listener needs a bearer token (not blank)",
         ));
     }
     limits::serve(listener, router(rt, Some(token))).await

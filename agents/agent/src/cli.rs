@@ -177,10 +177,10 @@ pub fn read_stack(path: &Path) -> Result<StackSpec> {
 /// The runtime options these arguments describe.
 pub fn options(args: &AgentArgs) -> Result<RuntimeOptions> {
     if let Some(addr) = args.tcp
-        && args.token.as_deref().is_none_or(str::is_empty)
+        && args.token.as_deref().is_none_or(|t| t.trim().is_empty())
     {
         return Err(Error::InvalidConfig(format!(
-            "--tcp {addr} needs a bearer token: pass --token or set CONFIGBOT_AGENT_TOKEN"
+            "--tcp {addr} needs a bearer token (not blank): pass --token or set CONFIGBOT_AGENT_TOKEN"
         )));
     }
     Ok(RuntimeOptions {
@@ -296,6 +296,8 @@ mod tests {
         );
         a.token = Some(String::new());
         assert!(options(&a).is_err(), "an empty token is no token");
+        a.token = Some(" \t\n".into());
+        assert!(options(&a).is_err(), "a blank token is no token");
         a.token = Some("s3cret".into());
         assert!(options(&a).is_ok());
         let mut unix_only = args(&[]);

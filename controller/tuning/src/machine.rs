@@ -979,7 +979,7 @@ pub fn step(mut run: Run, input: Input, env: &Env<'_>) -> (Run, Vec<Output>) {
                 None => r,
             };
             let eval = measure::evaluate(&defs, &report, env.spec.tuning.scalarization);
-            if so_far.is_none() && holds(&eval) && measure::short_of_bar(&defs, &report) {
+            if so_far.is_none() && holds(&eval, false) && measure::short_of_bar(&defs, &report) {
                 out.push(normal(
                     Reason::NearBoundary,
                     format!(
@@ -996,7 +996,10 @@ pub fn step(mut run: Run, input: Input, env: &Env<'_>) -> (Run, Vec<Output>) {
                     so_far: Some(report),
                 }
             } else {
-                verified(&mut run, env, &defs, candidate, config, &report, &mut out)
+                let minute = so_far.is_some();
+                verified(
+                    &mut run, env, &defs, candidate, config, &report, minute, &mut out,
+                )
             }
         }
         (State::UnsatApply { config }, Input::Applied) => {
