@@ -998,7 +998,7 @@ pub fn step(mut run: Run, input: Input, env: &Env<'_>) -> (Run, Vec<Output>) {
             } else {
                 let minute = so_far.is_some();
                 verified(
-                    &mut run, env, &defs, candidate, config, &report, minute, &mut out,
+                    &mut run, env, &defs, candidate, config, eval, minute, &mut out,
                 )
             }
         }

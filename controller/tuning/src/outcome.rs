@@ -7,7 +7,6 @@
 use std::collections::BTreeSet;
 
 use configbot_api::graph::Graph;
-use configbot_api::measure::MeasureReport;
 use configbot_manifests::performance_spec::RemediationAction;
 use configbot_manifests::{ProfileContext, ProfileTrial, Reason, ResourceConfig, RobotStack};
 use configbot_optimizer::{Observation, Prediction};
@@ -644,8 +643,8 @@ pub fn holds(eval: &measure::Evaluation, minute: bool) -> bool {
     }
 }
 
-/// A verification measured (over the minute when `minute`): monitor the
-/// candidate when it [`holds`], or try the next one.
+/// A verification measured, as `eval` (over the minute when `minute`):
+/// monitor the candidate when it [`holds`], or try the next one.
 #[allow(clippy::too_many_arguments)]
 pub fn verified(
     run: &mut Run,
@@ -653,11 +652,10 @@ pub fn verified(
     defs: &[MetricDef],
     candidate: Candidate,
     config: ResourceConfig,
-    r: &MeasureReport,
+    eval: measure::Evaluation,
     minute: bool,
     out: &mut Vec<Output>,
 ) -> State {
-    let eval = measure::evaluate(defs, r, env.spec.tuning.scalarization);
     let sat = eval.satisfaction;
     if holds(&eval, minute) {
         out.push(normal(
