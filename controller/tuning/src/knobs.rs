@@ -440,6 +440,22 @@ impl KnobSpace {
             .all(|(k, (&a, &b))| k.as_set(a) >= k.as_set(b))
     }
 
+    /// Whether `z` gives the non-core apps at least what `y` does on every
+    /// knob that only restricts one and sets every other knob as `y` does,
+    /// each as a config sets it (pure). A non-core app's rate does not fall
+    /// when it gets more input or more CPU, so an objective measured at `z`
+    /// caps what `y` can give (see `outcome::objective_ceiling`). False for
+    /// points of another space.
+    pub fn covers(&self, z: &[f64], y: &[f64]) -> bool {
+        self.gives_no_less(z, y)
+            && self
+                .knobs
+                .iter()
+                .zip(z.iter().zip(y))
+                .filter(|(k, _)| !k.restricts_non_core)
+                .all(|(k, (&a, &b))| k.as_set(a) == k.as_set(b))
+    }
+
     /// The point that drains the non-core apps before `x` is applied: every
     /// adaptor feeding a non-core subscriber at its minimum rate (no new
     /// work) and every non-core node's CPU at its maximum (finish the old

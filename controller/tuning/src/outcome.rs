@@ -244,7 +244,11 @@ fn back_off(
             ),
         ));
         run.deferred_backoff = Some(backoff);
-        return finish(run, env, defs, out);
+        let verify = State::VerifyApply {
+            candidate: Candidate::Trial { index: alt },
+            config: run.trials[alt].config.clone(),
+        };
+        return drain_first(run, env, verify);
     }
     let (y, shaped) = backoff_point(run, pick, uniform);
     let how = match &shaped {
@@ -312,9 +316,18 @@ fn backoff_point(run: &Run, pick: usize, uniform: Vec<f64>) -> (Vec<f64>, Option
         .filter(|y| !failed.iter().any(|z| run.knobs.gives_no_less(y, z)));
     let points: Vec<Vec<f64>> = std::iter::once(uniform.clone()).chain(shapes).collect();
     let verified: Vec<Observation> = run.failed_verifications.iter().map(observation).collect();
-    let Ok(preds) = opt.predict_many(&verified, &points) else {
+    let Ok(mut preds) = opt.predict_many(&verified, &points) else {
         return (uniform, None);
     };
+    let measured: Vec<&TrialRecord> = run.trials.iter().chain(&run.failed_verifications).collect();
+    for (p, y) in preds.iter_mut().zip(&points) {
+        if let (Some((mean, _)), Some(ceiling)) = (
+            p.objective.as_mut(),
+            objective_ceiling(&run.knobs, y, &measured),
+        ) {
+            *mean = mean.min(ceiling);
+        }
+    }
     let Some(best) = safest_best(&preds[0], &preds[1..], &opt.problem().constraints) else {
         return (uniform, None);
     };
@@ -331,6 +344,25 @@ fn backoff_point(run: &Run, pick: usize, uniform: Vec<f64>) -> (Vec<f64>, Option
         .map(|(k, (&xv, &yv))| format!("{} {:.0} %", k.name, (yv - k.min) / (xv - k.min) * 100.0))
         .collect();
     (y, Some(parts.join(", ")))
+}
+
+/// The most objective point `y` can give by what was measured (pure): the
+/// least objective measured at a config that [`KnobSpace::covers`] it (as
+/// much for every non-core app, every other knob the same), plus
+/// [`super::search::NEAR_BEST`] for a short window's count; `None` when no
+/// complete measurement covers it. A model fitted to few trials can
+/// predict an app more than its input or CPU allows. Measured on
+/// real-nodelets (2026-11-25): a shaped back-off cut the brightness
+/// transform to 0.05 CPU, predicted at objective 0.55 (sd 0.02), where a
+/// trial with that CPU and twice the input had measured 0.31; it held at
+/// 0.30, and the run ended there.
+pub fn objective_ceiling(knobs: &KnobSpace, y: &[f64], measured: &[&TrialRecord]) -> Option<f64> {
+    measured
+        .iter()
+        .filter(|t| !t.censored && knobs.covers(&t.x, y))
+        .filter_map(|t| t.eval.objective)
+        .min_by(f64::total_cmp)
+        .map(|o| o + super::search::NEAR_BEST)
 }
 
 /// The candidate to prefer to a reference point (pure): the one with the

@@ -56,7 +56,16 @@ fn best_failing_verification_tries_the_next_best_then_unsat() {
         });
     }
     let (run, out) = step(run, report(&[20.0; 10], 5.0), &env);
-    assert_eq!(reasons(&out), vec!["VerificationFailed"]);
+    assert_eq!(
+        reasons(&out),
+        vec!["VerificationFailed", "VerifyingNextBest"]
+    );
+    assert!(
+        event_text(&out[1]).contains(
+            "trial 0 measured objective 0.800, and no trial is beyond the edges the failed verifications left"
+        ),
+        "{out:?}"
+    );
     assert_eq!(
         run.state,
         State::VerifyApply {
@@ -261,7 +270,10 @@ fn a_best_trial_failing_verification_is_backed_off_before_the_next_best() {
     );
     // The last step failed too: the next best trial, as measured, and no back-off for it.
     let (run, out) = verify(run, &env, &BAD);
-    assert_eq!(reasons(&out), vec!["VerificationFailed"]);
+    assert_eq!(
+        reasons(&out),
+        vec!["VerificationFailed", "VerifyingNextBest"]
+    );
     assert_verifies_trial_as_measured(&run, 0);
     assert_eq!(run.rejected, vec![1]);
     let (run, out) = verify(run, &env, &BAD);
@@ -993,6 +1005,84 @@ fn a_failed_verification_leaves_an_edge_that_a_trial_must_clear_to_be_verified_i
         Some(0),
         "still verified once the back-offs are spent"
     );
+}
+
+/// Once the back-offs of a failed trial are spent, a trial inside the edge
+/// its failure left is verified before the one beyond it when it measured
+/// clearly more objective (0.8 against 0.1), and says why; when it fails
+/// too, the trial beyond the edge follows.
+#[test]
+fn with_the_back_offs_spent_a_trial_inside_an_edge_that_measured_more_is_verified_first() {
+    let (st, sp) = (stack(), spec(1.0, 5));
+    let env = env(&st, &sp);
+    let mut run = with_two_trials(&env);
+    run.trials.clear();
+    // Trial 0 gives the detector least and holds /cmd_vel at 60 Hz, beyond
+    // the edge (55) trial 2's failure leaves; trial 1 sits as near 35 Hz
+    // as trial 2.
+    push_trial_at(&mut run, &env, &[0.1, 1.5], &[60.0; 5], 1.0);
+    push_trial(&mut run, &env, &[1.0, 1.5], 8.0);
+    push_trial(&mut run, &env, &[1.9, 1.5], 9.0);
+    let mut out = Vec::new();
+    run.state = finish(&mut run, &env, &env.defs(), &mut out);
+    assert!(out.is_empty(), "no edge yet: {out:?}");
+    assert_verifies_trial_as_measured(&run, 2);
+    for _ in 0..3 {
+        let (r, out) = verify(run, &env, &BAD);
+        run = r;
+        assert_eq!(reasons(&out), vec!["VerificationFailed", "BackingOff"]);
+    }
+    assert_eq!(search::best_clear_trial(&run), Some(0));
+    let (run, out) = verify(run, &env, &BAD);
+    assert_eq!(
+        reasons(&out),
+        vec!["VerificationFailed", "VerifyingNextBest"]
+    );
+    assert!(
+        event_text(&out[1]).contains(
+            "trial 1 measured objective 0.800, more than trial 0 (0.100), the best beyond the edges"
+        ),
+        "{out:?}"
+    );
+    assert_verifies_trial_as_measured(&run, 1);
+    let (run, out) = verify(run, &env, &BAD);
+    assert_eq!(reasons(&out), vec!["VerificationFailed"]);
+    assert_verifies_trial_as_measured(&run, 0);
+    let (run, out) = verify(run, &env, &[60.0; 10]);
+    assert_eq!(reasons(&out), vec!["Satisfied", "<save>"]);
+    assert_eq!(run.rejected, vec![2, 1]);
+}
+
+/// What a shaped back-off is predicted to give is capped by what a
+/// measurement that covers it gave: as much for the non-core apps on every
+/// knob, the others the same.
+#[test]
+fn a_back_off_is_predicted_no_more_objective_than_a_measurement_that_covers_it() {
+    use crate::outcome::objective_ceiling;
+    let (st, sp) = (stack(), spec(1.0, 5));
+    let env = env(&st, &sp);
+    let mut run = with_two_trials(&env);
+    run.trials.clear();
+    push_trial(&mut run, &env, &[1.0, 1.5], 4.0);
+    push_trial(&mut run, &env, &[1.9, 1.5], 9.0);
+    push_trial(&mut run, &env, &[1.9, 1.0], 2.0);
+    let measured: Vec<&TrialRecord> = run.trials.iter().collect();
+    let ceiling = |y: &[f64]| objective_ceiling(&run.knobs, y, &measured);
+    let near = |a: Option<f64>, b: f64| a.is_some_and(|a| (a - b).abs() < 1e-9);
+    // Covered by trials 0 and 1 (not 2: /planner, a core knob, differs):
+    // the least of them plus a count's worth.
+    assert!(near(ceiling(&[0.5, 1.5]), 0.4 + search::NEAR_BEST));
+    assert!(near(ceiling(&[1.5, 1.5]), 0.9 + search::NEAR_BEST));
+    assert!(near(ceiling(&[1.9, 1.0]), 0.2 + search::NEAR_BEST));
+    // More for the detector than any measurement gave: nothing known.
+    assert_eq!(ceiling(&[2.0, 1.5]), None);
+    // A censored (stopped early) trial caps nothing.
+    run.trials[0].censored = true;
+    let measured: Vec<&TrialRecord> = run.trials.iter().collect();
+    assert!(near(
+        objective_ceiling(&run.knobs, &[0.5, 1.5], &measured),
+        0.9 + search::NEAR_BEST
+    ));
 }
 
 /// Drives a run from its baseline to Monitor (or Unsat) against a stand-in
