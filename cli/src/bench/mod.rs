@@ -57,6 +57,17 @@ pub struct BenchArgs {
     /// run with the median objective.
     #[arg(long, value_delimiter = ',', default_value = "1,2,3")]
     seeds: Vec<u64>,
+    /// Real stacks: the rows to measure, in their fixed order: launch-default,
+    /// default (the per-node default), cgroup-only, configbot (one run per
+    /// seed) and oracle. Naming some runs only those, e.g. `--real-methods
+    /// oracle` to measure a stack's yardstick alone.
+    #[arg(
+        long,
+        value_delimiter = ',',
+        value_enum,
+        default_value = "launch-default,default,cgroup-only,configbot,oracle"
+    )]
+    real_methods: Vec<real::Method>,
     /// Real stacks: configs the oracle measures (0: no oracle). It measures
     /// the corners of the knob space and a Sobol design, each from a drained
     /// state, then verifies the best over a full window.
@@ -322,6 +333,7 @@ fn real_plan(a: &BenchArgs, p: &Plan) -> real::RealPlan {
         real::RealPlan {
             window: p.window,
             seeds: a.seeds.iter().take(1).copied().collect(),
+            methods: a.real_methods.clone(),
             oracle_configs: a.oracle_configs.min(3),
             oracle_window: 3,
             max_trials: p.max_trials,
@@ -330,6 +342,7 @@ fn real_plan(a: &BenchArgs, p: &Plan) -> real::RealPlan {
         real::RealPlan {
             window: a.real_window_secs,
             seeds: a.seeds.clone(),
+            methods: a.real_methods.clone(),
             oracle_configs: a.oracle_configs,
             oracle_window: a.oracle_window_secs,
             max_trials: None,

@@ -55,11 +55,22 @@ pub fn expand(stacks: &[String]) -> Vec<String> {
     out
 }
 
+/// The rows of a real stack (`--real-methods`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum Method {
+    LaunchDefault,
+    Default,
+    CgroupOnly,
+    Configbot,
+    Oracle,
+}
+
 /// The settings of the real-stack rows (`--quick` shortens them).
 #[derive(Debug, Clone)]
 pub struct RealPlan {
     pub window: u64,
     pub seeds: Vec<u64>,
+    pub methods: Vec<Method>,
     pub oracle_configs: usize,
     pub oracle_window: u64,
     pub max_trials: Option<u32>,
@@ -78,16 +89,28 @@ pub async fn run_stack(
     }
     let defs = measure::metric_defs(&stack.spec, &spec.spec);
     let mut rows = Vec::new();
-    println!("==> {name}: launch default ({} s)", p.window);
-    rows.push(launch_default(cur, a, name, &stack, &defs, p.window).await?);
-    println!("==> {name}: per-node default ({} s)", p.window);
-    rows.push(per_node_default(cur, a, name, &stack, &defs, p.window).await?);
-    println!("==> {name}: cgroup-only");
-    let mut cg = spec.clone();
-    cg.spec.knobs.adaptors.enabled = false;
-    rows.push(tuned(cur, a, name, "cgroup-only", &stack, &cg, p.window).await?);
+    let runs_row = |m: Method| p.methods.contains(&m);
+    if runs_row(Method::LaunchDefault) {
+        println!("==> {name}: launch default ({} s)", p.window);
+        rows.push(launch_default(cur, a, name, &stack, &defs, p.window).await?);
+    }
+    if runs_row(Method::Default) {
+        println!("==> {name}: per-node default ({} s)", p.window);
+        rows.push(per_node_default(cur, a, name, &stack, &defs, p.window).await?);
+    }
+    if runs_row(Method::CgroupOnly) {
+        println!("==> {name}: cgroup-only");
+        let mut cg = spec.clone();
+        cg.spec.knobs.adaptors.enabled = false;
+        rows.push(tuned(cur, a, name, "cgroup-only", &stack, &cg, p.window).await?);
+    }
     let mut runs = Vec::new();
-    for &seed in &p.seeds {
+    let seeds = if runs_row(Method::Configbot) {
+        p.seeds.as_slice()
+    } else {
+        &[]
+    };
+    for &seed in seeds {
         println!("==> {name}: configbot, seed {seed}");
         let mut s = spec.clone();
         s.spec.tuning.seed = seed;
@@ -99,7 +122,7 @@ pub async fn run_stack(
         rows.extend(runs);
         rows.push(median);
     }
-    let oracle = if p.oracle_configs > 0 {
+    let oracle = if p.oracle_configs > 0 && runs_row(Method::Oracle) {
         println!(
             "==> {name}: oracle, {} configs of {} s",
             p.oracle_configs, p.oracle_window
