@@ -1,8 +1,9 @@
 //! Transparent per-subscriber adaptors. The master hands an adapted
 //! subscriber the adaptor's slave URI instead of the real publishers; the
 //! adaptor (a slave XML-RPC endpoint + a TCPROS server shared by all edges)
-//! relays frames from the real publishers and forwards at most the configured
-//! rate to that one subscriber. The rate limiter is a pure credit
+//! relays frames from the real publishers (read through the topic's tap,
+//! [`crate::tap`]) and forwards at most the configured rate to that one
+//! subscriber. The rate limiter is a pure credit
 //! accumulator, so any rate up to the input rate is reachable.
 
 use std::collections::BTreeMap;
@@ -19,7 +20,7 @@ use crate::http::{BoxFut, Handler};
 use crate::limits::TCPROS_HEADER_TIMEOUT;
 use crate::stats::RateWindow;
 use crate::tcpros::{self, Header};
-use crate::upstream::{FrameSink, UpstreamSet};
+use crate::upstream::{Frame, FrameSink};
 use crate::xmlrpc::{MethodCall, Response, Value};
 
 /// Name prefix of everything the adaptors show to ROS.
@@ -107,8 +108,6 @@ impl AdaptorMetrics {
         })
     }
 }
-
-type Frame = Arc<Vec<u8>>;
 
 /// One adapted edge.
 #[derive(Debug)]
@@ -222,8 +221,7 @@ impl FrameSink for EdgeRelay {
         }
     }
 
-    fn on_frame(&self, api: &str, frame: Vec<u8>) {
-        let frame = Arc::new(frame);
+    fn on_frame(&self, api: &str, frame: Frame) {
         let latching = self.headers.lock().is_ok_and(|h| {
             h.get(api)
                 .is_some_and(|h| h.get("latching").is_some_and(|v| v == "1"))
@@ -271,15 +269,9 @@ impl FrameSink for EdgeRelay {
     }
 }
 
-/// A live relay: the edge plus its upstream connections.
-#[derive(Debug)]
-pub struct Relay {
-    pub edge: Arc<EdgeRelay>,
-    pub upstream: UpstreamSet,
-}
-
-/// The relays of all adapted edges, shared by the servers below.
-pub type Relays = Arc<Mutex<BTreeMap<EdgeId, Arc<Relay>>>>;
+/// The relays of all adapted edges, shared by the servers below; each reads
+/// its topic's tap.
+pub type Relays = Arc<Mutex<BTreeMap<EdgeId, Arc<EdgeRelay>>>>;
 
 /// Accepts subscriber connections on the adaptor's TCPROS port.
 pub async fn serve_tcpros(listener: TcpListener, relays: Relays, timeout: Duration) {
@@ -316,8 +308,8 @@ pub async fn serve_tcpros(listener: TcpListener, relays: Relays, timeout: Durati
                 topic: h.get("topic").cloned().unwrap_or_default(),
                 subscriber: h.get("callerid").cloned().unwrap_or_default(),
             };
-            let relay = relays.lock().ok().and_then(|r| r.get(&id).cloned());
-            let Some(relay) = relay else {
+            let edge = relays.lock().ok().and_then(|r| r.get(&id).cloned());
+            let Some(edge) = edge else {
                 let mut e = Header::new();
                 e.insert(
                     "error".into(),
@@ -328,8 +320,6 @@ pub async fn serve_tcpros(listener: TcpListener, relays: Relays, timeout: Durati
                         .await;
                 return;
             };
-            let edge = relay.edge.clone();
-            drop(relay);
             // Wait for an upstream publisher's header to answer with its type.
             let mut rx = edge.header.subscribe();
             let up: Option<Header> =

@@ -1,7 +1,8 @@
 //! The shared core of the ROS 1 data plane: master state behind a lock, its
-//! persistence, adaptor relays and topic meters, and the IO that carries out
-//! the master's [`Effect`]s (re-pointing meters and relays, publisherUpdate,
-//! paramUpdate, shutdown calls).
+//! persistence, adaptor relays and topic meters with the taps that feed them
+//! (one upstream subscription per topic), and the IO that carries out the
+//! master's [`Effect`]s (re-pointing taps, publisherUpdate, paramUpdate,
+//! shutdown calls).
 
 use std::collections::BTreeMap;
 use std::sync::{Arc, Mutex, MutexGuard};
@@ -11,12 +12,12 @@ use configbot_api::backoff::Backoff;
 use configbot_dataplane::{AdaptorSetting, EdgeId};
 use tokio::sync::Notify;
 
-use crate::adaptor::{ADAPTOR_PREFIX, AdaptorMetrics, EdgeRelay, Relay, Relays};
+use crate::adaptor::{ADAPTOR_PREFIX, AdaptorMetrics, EdgeRelay, Relays};
 use crate::http;
-use crate::meter::Meter;
+use crate::meter::{METER_KEY, Meter};
 use crate::state::{Effect, MasterState};
 use crate::store::Store;
-use crate::upstream::UpstreamSet;
+use crate::tap::Tap;
 use crate::xmlrpc::Value;
 
 /// Decides at subscribe time whether an edge gets a (pass-through) adaptor:
@@ -39,6 +40,8 @@ pub(crate) struct Core {
     pub placement: Placement,
     pub metrics: AdaptorMetrics,
     pub meters: Mutex<BTreeMap<String, Arc<Meter>>>,
+    /// One per topic that a meter or a relay reads, by topic.
+    pub taps: Mutex<BTreeMap<String, Arc<Tap>>>,
     pub meter_window_s: f64,
     pub wake: Notify,
     pub timeout: Duration,
@@ -98,44 +101,80 @@ impl Core {
         let setting = lock(&self.settings).get(&id).copied();
         match setting {
             Some(s) if !apis.is_empty() => {
-                let relay = self.ensure_relay(&id, s);
-                relay.upstream.set_publishers(&apis, &msg_type);
+                self.ensure_relay(&id, s);
+                self.tap(topic).set_publishers(&apis, &msg_type);
                 vec![self.adaptor_uri.clone()]
             }
             _ => apis,
         }
     }
 
-    fn ensure_relay(&self, id: &EdgeId, s: AdaptorSetting) -> Arc<Relay> {
-        let mut relays = lock(&self.relays);
-        relays
-            .entry(id.clone())
-            .or_insert_with(|| {
-                let edge = Arc::new(EdgeRelay::new(id.clone(), s, self.metrics.clone()));
-                let caller = format!("{ADAPTOR_PREFIX}{}", id.subscriber);
-                let upstream = UpstreamSet::new(&caller, &id.topic, edge.clone(), self.timeout);
-                Arc::new(Relay { edge, upstream })
-            })
-            .clone()
+    fn ensure_relay(&self, id: &EdgeId, s: AdaptorSetting) -> Arc<EdgeRelay> {
+        let (edge, created) = {
+            let mut relays = lock(&self.relays);
+            let created = !relays.contains_key(id);
+            let edge = relays
+                .entry(id.clone())
+                .or_insert_with(|| Arc::new(EdgeRelay::new(id.clone(), s, self.metrics.clone())))
+                .clone();
+            (edge, created)
+        };
+        if created {
+            self.tap(&id.topic).add(&relay_key(id), edge.clone());
+        }
+        edge
     }
 
-    /// Re-points relays and meters of `topic` at its current publishers.
-    pub fn refresh_topic(&self, topic: &str) {
-        let (apis, ty) = {
-            let st = lock(&self.state);
-            (st.publisher_apis(topic), st.type_of(topic).to_string())
+    /// Removes the relay of `id` (its subscriber is gone or no longer
+    /// adapted) and its topic's tap when nothing else reads it.
+    pub fn drop_relay(&self, id: &EdgeId) -> Option<Arc<EdgeRelay>> {
+        let edge = lock(&self.relays).remove(id)?;
+        self.leave_tap(&id.topic, &relay_key(id));
+        Some(edge)
+    }
+
+    /// The tap of `topic`, created (and pointed at the topic's publishers)
+    /// when nothing read the topic yet.
+    fn tap(&self, topic: &str) -> Arc<Tap> {
+        let (tap, created) = {
+            let mut taps = lock(&self.taps);
+            let created = !taps.contains_key(topic);
+            let tap = taps
+                .entry(topic.to_string())
+                .or_insert_with(|| Arc::new(Tap::new(topic, self.timeout)))
+                .clone();
+            (tap, created)
         };
-        let relays: Vec<Arc<Relay>> = lock(&self.relays)
-            .iter()
-            .filter(|(id, _)| id.topic == topic)
-            .map(|(_, r)| r.clone())
-            .collect();
-        for r in relays {
-            r.upstream.set_publishers(&apis, &ty);
+        if created {
+            let (apis, ty) = {
+                let st = lock(&self.state);
+                (st.publisher_apis(topic), st.type_of(topic).to_string())
+            };
+            tap.set_publishers(&apis, &ty);
         }
-        let meter = lock(&self.meters).get(topic).cloned();
-        if let Some(m) = meter {
-            m.upstream.set_publishers(&apis, &ty);
+        tap
+    }
+
+    /// Removes reader `key` from `topic`'s tap, and the tap (closing its
+    /// connections) when it was the last.
+    fn leave_tap(&self, topic: &str, key: &str) {
+        let mut taps = lock(&self.taps);
+        if let Some(t) = taps.get(topic)
+            && !t.remove(key)
+        {
+            taps.remove(topic);
+        }
+    }
+
+    /// Re-points `topic`'s tap (its meter and relays) at its current publishers.
+    pub fn refresh_topic(&self, topic: &str) {
+        let tap = lock(&self.taps).get(topic).cloned();
+        if let Some(t) = tap {
+            let (apis, ty) = {
+                let st = lock(&self.state);
+                (st.publisher_apis(topic), st.type_of(topic).to_string())
+            };
+            t.set_publishers(&apis, &ty);
         }
     }
 
@@ -242,7 +281,7 @@ impl Core {
         self.persist_adaptors();
         let relay = lock(&self.relays).get(id).cloned();
         if let Some(r) = relay {
-            r.edge.set(s);
+            r.set(s);
         }
         if !existed {
             // Point the subscriber at the adaptor (roscpp drops the direct
@@ -268,10 +307,11 @@ impl Core {
         }]);
         let relay = lock(&self.relays).remove(id);
         if let Some(r) = relay {
-            let timeout = self.timeout;
+            let (core, id, timeout) = (self.clone(), id.clone(), self.timeout);
             tokio::spawn(async move {
                 tokio::time::sleep(timeout.min(Duration::from_millis(500))).await;
-                r.edge.close_downstream();
+                r.close_downstream();
+                core.leave_tap(&id.topic, &relay_key(&id));
             });
         }
         had
@@ -285,12 +325,18 @@ impl Core {
             created = !meters.contains_key(topic);
             meters
                 .entry(topic.to_string())
-                .or_insert_with(|| Arc::new(Meter::new(topic, self.meter_window_s, self.timeout)))
+                .or_insert_with(|| Arc::new(Meter::new(self.meter_window_s)))
                 .clone()
         };
         if created {
-            self.refresh_topic(topic);
+            self.tap(topic).add(METER_KEY, m.reader());
         }
         m
     }
+}
+
+/// A relay's key among its topic's tap's readers: its subscriber, as the
+/// adaptor presents itself to ROS.
+fn relay_key(id: &EdgeId) -> String {
+    format!("{ADAPTOR_PREFIX}{}", id.subscriber)
 }

@@ -13,6 +13,7 @@ pub mod params;
 pub mod state;
 pub mod stats;
 pub mod store;
+pub mod tap;
 pub mod tcpros;
 pub mod upstream;
 pub mod xmlrpc;
@@ -163,6 +164,9 @@ impl Drop for Ros1DataPlane {
         if let Ok(mut m) = self.core.meters.lock() {
             m.clear();
         }
+        if let Ok(mut t) = self.core.taps.lock() {
+            t.clear();
+        }
     }
 }
 
@@ -213,6 +217,7 @@ impl Ros1DataPlane {
                 .unwrap_or_else(|| Arc::new(|_: &EdgeId, _: &[String]| false)),
             metrics,
             meters: Mutex::new(BTreeMap::new()),
+            taps: Mutex::new(BTreeMap::new()),
             meter_window_s: config.meter_window.as_secs_f64(),
             wake: Notify::new(),
             timeout: config.call_timeout,
@@ -482,7 +487,7 @@ impl DataPlane for Ros1DataPlane {
 
     fn edge_stats(&self, edge: &EdgeId) -> Option<TopicStats> {
         let r = lock(&self.core.relays).get(edge).cloned()?;
-        r.edge.consumer_stats()
+        r.consumer_stats()
     }
 
     fn set_adaptor(&self, edge: &EdgeId, setting: AdaptorSetting) -> Result<(), DataPlaneError> {
@@ -516,7 +521,7 @@ impl DataPlane for Ros1DataPlane {
             .map(|k| (k.clone(), EdgeCounters::default()))
             .collect();
         for (k, r) in lock(&self.core.relays).iter() {
-            out.insert(k.clone(), r.edge.counters());
+            out.insert(k.clone(), r.counters());
         }
         out
     }

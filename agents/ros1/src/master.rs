@@ -137,7 +137,7 @@ impl MasterHandler {
                     subscriber: caller.clone(),
                 };
                 if n > 0 {
-                    lock(&core.relays).remove(&id);
+                    core.drop_relay(&id);
                 }
                 core.persist();
                 core.wake.notify_one();

@@ -1,18 +1,19 @@
-//! Topic meters: a hidden raw TCPROS subscriber (`/configbot/meter`) per
-//! measured topic that feeds arrival times and sizes into a [`RateWindow`].
+//! Topic meters: a reader of the measured topic's tap ([`crate::tap`]: the
+//! agent's hidden raw TCPROS subscription) that feeds arrival times and sizes
+//! into a [`RateWindow`].
 
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
-use std::time::{Duration, Instant};
+use std::time::Instant;
 
 use configbot_dataplane::TopicStats;
 
 use crate::stats::RateWindow;
 use crate::tcpros::Header;
-use crate::upstream::{FrameSink, UpstreamSet};
+use crate::upstream::{Frame, FrameSink};
 
-/// Caller id the meters use towards publishers.
-pub const METER_CALLER_ID: &str = "/configbot/meter";
+/// The meter's key among its tap's readers.
+pub const METER_KEY: &str = "/configbot/meter";
 
 #[derive(Debug)]
 struct Sink {
@@ -23,7 +24,7 @@ struct Sink {
 
 impl FrameSink for Sink {
     fn on_header(&self, _api: &str, _header: &Header) {}
-    fn on_frame(&self, _api: &str, frame: Vec<u8>) {
+    fn on_frame(&self, _api: &str, frame: Frame) {
         self.messages.fetch_add(1, Ordering::Relaxed);
         let t = self.epoch.elapsed().as_secs_f64();
         if let Ok(mut w) = self.window.lock() {
@@ -36,18 +37,21 @@ impl FrameSink for Sink {
 #[derive(Debug)]
 pub struct Meter {
     sink: Arc<Sink>,
-    pub upstream: UpstreamSet,
 }
 
 impl Meter {
-    pub fn new(topic: &str, window_s: f64, timeout: Duration) -> Self {
+    pub fn new(window_s: f64) -> Self {
         let sink = Arc::new(Sink {
             window: Mutex::new(RateWindow::new(window_s)),
             epoch: Instant::now(),
             messages: AtomicU64::new(0),
         });
-        let upstream = UpstreamSet::new(METER_CALLER_ID, topic, sink.clone(), timeout);
-        Self { sink, upstream }
+        Self { sink }
+    }
+
+    /// What the meter's tap feeds.
+    pub fn reader(&self) -> Arc<dyn FrameSink> {
+        self.sink.clone()
     }
 
     /// Messages received since the meter started.

@@ -1,6 +1,6 @@
 //! Keeps one TCPROS subscriber connection per publisher of a topic, feeding
 //! raw frames to a sink; reconnects while the publisher stays listed.
-//! Used by topic meters and adaptor relays.
+//! Used by the taps ([`crate::tap`]) that feed topic meters and adaptor relays.
 
 use std::collections::BTreeMap;
 use std::sync::{Arc, Mutex};
@@ -11,12 +11,15 @@ use tokio::task::JoinHandle;
 
 use crate::tcpros::{self, Header};
 
+/// One raw message frame, shared by every reader of a tap.
+pub type Frame = Arc<Vec<u8>>;
+
 /// Receives what upstream connections read.
 pub trait FrameSink: Send + Sync + 'static {
     /// A publisher's reply header after a (re)connect.
     fn on_header(&self, api: &str, header: &Header);
     /// One raw message frame from publisher `api`.
-    fn on_frame(&self, api: &str, frame: Vec<u8>);
+    fn on_frame(&self, api: &str, frame: Frame);
     /// Publisher `api` is no longer listed.
     fn on_gone(&self, _api: &str) {}
 }
@@ -124,7 +127,7 @@ async fn run(
                 backoff.reset();
                 sink.on_header(&api, &c.header);
                 while let Ok(f) = tcpros::read_block(&mut c.stream, &c.peer).await {
-                    sink.on_frame(&api, f);
+                    sink.on_frame(&api, Arc::new(f));
                 }
             }
             Err(_) => {

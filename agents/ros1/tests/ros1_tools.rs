@@ -355,6 +355,67 @@ fn adaptor_limits_one_subscriber_and_changes_rate_live() {
     assert!((28.5..=31.5).contains(&rd), "after removal: {rd}");
 }
 
+/// Two adapted subscribers and the meter of one topic read it through one
+/// connection to its publisher (the topic's tap), each still at its own
+/// rate: the publisher sends each message to the agent once.
+#[test]
+fn adapted_subscribers_and_the_meter_share_one_connection() {
+    if !ros_available() {
+        return;
+    }
+    let a = start_agent(Duration::from_secs(30));
+    let _g = a.rt.enter();
+    let env = &a.env;
+    let topic = format!("/{}", unique("shared"));
+    let tname = unique("talker");
+    let (ten, twenty) = (unique("ten_hz"), unique("twenty_hz"));
+    for (name, rate) in [(&ten, 10.0), (&twenty, 20.0)] {
+        let edge = EdgeId {
+            topic: topic.clone(),
+            subscriber: format!("/{name}"),
+        };
+        a.dp.set_adaptor(
+            &edge,
+            AdaptorSetting {
+                rate_hz: Some(rate),
+            },
+        )
+        .unwrap();
+    }
+    let _talker = env.script("talker.py", &[&tname, &topic, "30"]);
+    let l10 = env.script("listener.py", &[&ten, &topic]);
+    let l20 = env.script("listener.py", &[&twenty, &topic]);
+    let recent =
+        |p: &Proc| p.count_between(Instant::now() - Duration::from_secs(2), Instant::now());
+    wait_until(
+        "both adapted listeners receive",
+        Duration::from_secs(20),
+        POLL,
+        || recent(&l10) > 5 && recent(&l20) > 5,
+    );
+    let before = a.dp.topic_messages(&topic).unwrap();
+    let (r10, r20) = std::thread::scope(|s| {
+        let x = s.spawn(|| measure_rate(&l10, 4.0));
+        let y = s.spawn(|| measure_rate(&l20, 4.0));
+        (x.join().unwrap(), y.join().unwrap())
+    });
+    let metered = a.dp.topic_messages(&topic).unwrap() - before;
+    eprintln!("listeners {r10:.2} / {r20:.2} Hz, meter {metered} messages in 4 s");
+    assert!((9.0..=11.0).contains(&r10), "10 Hz listener got {r10}");
+    assert!((19.0..=21.0).contains(&r20), "20 Hz listener got {r20}");
+    assert!(metered >= 100, "the meter saw {metered} of ~120 messages");
+    let info = env.run("rosnode", &["info", &format!("/{tname}")]);
+    let to_agent: Vec<&str> = info
+        .lines()
+        .filter(|l| l.contains("* to: /configbot"))
+        .collect();
+    assert_eq!(
+        to_agent,
+        ["    * to: /configbot/tap"],
+        "the publisher should send to the agent once: {info}"
+    );
+}
+
 #[test]
 fn adaptor_handles_latched_topics_and_publishers_coming_and_going() {
     if !ros_available() {

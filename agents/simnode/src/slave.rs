@@ -10,7 +10,7 @@ use std::sync::{Arc, Mutex};
 
 use configbot_ros1::http::{BoxFut, Handler};
 use configbot_ros1::tcpros::Header;
-use configbot_ros1::upstream::{FrameSink, UpstreamSet};
+use configbot_ros1::upstream::{Frame, FrameSink, UpstreamSet};
 use configbot_ros1::xmlrpc::{MethodCall, Response, Value};
 use tokio::sync::Notify;
 
@@ -70,8 +70,10 @@ impl FrameSink for InSink {
         }
     }
 
-    fn on_frame(&self, _api: &str, frame: Vec<u8>) {
+    fn on_frame(&self, _api: &str, frame: Frame) {
         let at = std::time::Instant::now();
+        // The one owner of the frame (this connection feeds no one else).
+        let frame = Arc::unwrap_or_clone(frame);
         if let Some((last, rest)) = self.callbacks.split_last() {
             for &i in rest {
                 self.dispatcher.deliver(
