@@ -320,10 +320,21 @@ fn kill_storm_during_tuning_loses_nothing() {
     }
     let storm = storm_started.elapsed();
 
+    // What is left of the run may take its remaining trials (2.5 s each with
+    // the settle) and then a verification measured on to the minute for the
+    // best trial, each back-off step and the fallback; CI timed out at 120 s
+    // while trial 21's verification measured its minute.
+    let verifications = u64::from(configbot_tuning::machine::BACKOFF_STEPS) + 2;
+    let remaining = u64::from(max_trials).saturating_sub(seen.len() as u64);
+    let deadline = Duration::from_millis(
+        remaining * 2500
+            + verifications * configbot_tuning::measure::BAR_WINDOWS as u64 * 1000
+            + 30_000,
+    );
     let done = robot.wait_for(
         "pspec",
         name,
-        Duration::from_secs(120),
+        deadline,
         "the run completes after the storm",
         |o| matches!(phase(o), Phase::Monitoring | Phase::Unsat),
     );
