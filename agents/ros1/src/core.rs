@@ -70,6 +70,22 @@ pub(crate) fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
     m.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
 }
 
+/// The entry `key` of `map`, made by `make` if it is missing; `true` when it
+/// was made by this call (so its caller wires it up once).
+fn get_or_make<K: Ord + Clone, V>(
+    map: &Mutex<BTreeMap<K, Arc<V>>>,
+    key: &K,
+    make: impl FnOnce() -> V,
+) -> (Arc<V>, bool) {
+    let mut map = lock(map);
+    if let Some(v) = map.get(key) {
+        return (v.clone(), false);
+    }
+    let v = Arc::new(make());
+    map.insert(key.clone(), v.clone());
+    (v, true)
+}
+
 impl Core {
     /// Writes the master state to the database (errors are logged: the
     /// in-memory master keeps serving).
@@ -90,10 +106,7 @@ impl Core {
     /// The publisher list `subscriber` should see for `topic`: the adaptor
     /// when the edge is adapted and has publishers, else the real ones.
     pub fn publishers_for(self: &Arc<Self>, topic: &str, subscriber: &str) -> Vec<String> {
-        let (apis, msg_type) = {
-            let st = lock(&self.state);
-            (st.publisher_apis(topic), st.type_of(topic).to_string())
-        };
+        let (apis, msg_type) = self.publishers_of(topic);
         let id = EdgeId {
             topic: topic.into(),
             subscriber: subscriber.into(),
@@ -109,16 +122,16 @@ impl Core {
         }
     }
 
+    /// The master's publisher APIs of `topic` and its type.
+    fn publishers_of(&self, topic: &str) -> (Vec<String>, String) {
+        let st = lock(&self.state);
+        (st.publisher_apis(topic), st.type_of(topic).to_string())
+    }
+
     fn ensure_relay(&self, id: &EdgeId, s: AdaptorSetting) -> Arc<EdgeRelay> {
-        let (edge, created) = {
-            let mut relays = lock(&self.relays);
-            let created = !relays.contains_key(id);
-            let edge = relays
-                .entry(id.clone())
-                .or_insert_with(|| Arc::new(EdgeRelay::new(id.clone(), s, self.metrics.clone())))
-                .clone();
-            (edge, created)
-        };
+        let (edge, created) = get_or_make(&self.relays, id, || {
+            EdgeRelay::new(id.clone(), s, self.metrics.clone())
+        });
         if created {
             self.tap(&id.topic).add(&relay_key(id), edge.clone());
         }
@@ -136,20 +149,11 @@ impl Core {
     /// The tap of `topic`, created (and pointed at the topic's publishers)
     /// when nothing read the topic yet.
     fn tap(&self, topic: &str) -> Arc<Tap> {
-        let (tap, created) = {
-            let mut taps = lock(&self.taps);
-            let created = !taps.contains_key(topic);
-            let tap = taps
-                .entry(topic.to_string())
-                .or_insert_with(|| Arc::new(Tap::new(topic, self.timeout)))
-                .clone();
-            (tap, created)
-        };
+        let (tap, created) = get_or_make(&self.taps, &topic.to_string(), || {
+            Tap::new(topic, self.timeout)
+        });
         if created {
-            let (apis, ty) = {
-                let st = lock(&self.state);
-                (st.publisher_apis(topic), st.type_of(topic).to_string())
-            };
+            let (apis, ty) = self.publishers_of(topic);
             tap.set_publishers(&apis, &ty);
         }
         tap
@@ -170,10 +174,7 @@ impl Core {
     pub fn refresh_topic(&self, topic: &str) {
         let tap = lock(&self.taps).get(topic).cloned();
         if let Some(t) = tap {
-            let (apis, ty) = {
-                let st = lock(&self.state);
-                (st.publisher_apis(topic), st.type_of(topic).to_string())
-            };
+            let (apis, ty) = self.publishers_of(topic);
             t.set_publishers(&apis, &ty);
         }
     }
@@ -319,15 +320,9 @@ impl Core {
 
     /// Starts (if needed) measuring `topic`.
     pub fn meter(&self, topic: &str) -> Arc<Meter> {
-        let created;
-        let m = {
-            let mut meters = lock(&self.meters);
-            created = !meters.contains_key(topic);
-            meters
-                .entry(topic.to_string())
-                .or_insert_with(|| Arc::new(Meter::new(self.meter_window_s)))
-                .clone()
-        };
+        let (m, created) = get_or_make(&self.meters, &topic.to_string(), || {
+            Meter::new(self.meter_window_s)
+        });
         if created {
             self.tap(topic).add(METER_KEY, m.reader());
         }
