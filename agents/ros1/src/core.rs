@@ -18,6 +18,7 @@ use crate::meter::{METER_KEY, Meter};
 use crate::state::{Effect, MasterState};
 use crate::store::Store;
 use crate::tap::Tap;
+use crate::upstream::FrameSink;
 use crate::xmlrpc::Value;
 
 /// Decides at subscribe time whether an edge gets a (pass-through) adaptor:
@@ -142,7 +143,11 @@ impl Core {
     /// adapted) and its topic's tap when nothing else reads it.
     pub fn drop_relay(&self, id: &EdgeId) -> Option<Arc<EdgeRelay>> {
         let edge = lock(&self.relays).remove(id)?;
-        self.leave_tap(&id.topic, &relay_key(id));
+        self.leave_tap(
+            &id.topic,
+            &relay_key(id),
+            &(edge.clone() as Arc<dyn FrameSink>),
+        );
         Some(edge)
     }
 
@@ -159,12 +164,12 @@ impl Core {
         tap
     }
 
-    /// Removes reader `key` from `topic`'s tap, and the tap (closing its
-    /// connections) when it was the last.
-    fn leave_tap(&self, topic: &str, key: &str) {
+    /// Removes `reader` (by `key`) from `topic`'s tap, and the tap (closing
+    /// its connections) when it was the last.
+    fn leave_tap(&self, topic: &str, key: &str, reader: &Arc<dyn FrameSink>) {
         let mut taps = lock(&self.taps);
         if let Some(t) = taps.get(topic)
-            && !t.remove(key)
+            && !t.remove(key, reader)
         {
             taps.remove(topic);
         }
@@ -312,7 +317,9 @@ impl Core {
             tokio::spawn(async move {
                 tokio::time::sleep(timeout.min(Duration::from_millis(500))).await;
                 r.close_downstream();
-                core.leave_tap(&id.topic, &relay_key(&id));
+                // By then the edge may be adapted again, with a new relay
+                // under the same key: only this one leaves.
+                core.leave_tap(&id.topic, &relay_key(&id), &(r as Arc<dyn FrameSink>));
             });
         }
         had

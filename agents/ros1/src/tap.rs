@@ -55,10 +55,17 @@ impl Tap {
         self.readers.add(key, sink);
     }
 
-    /// Removes the reader `key`; returns whether readers are left.
-    pub fn remove(&self, key: &str) -> bool {
+    /// Removes the reader `key` if it is still `reader` (an edge adapted
+    /// again meanwhile has a new reader under the same key, which stays);
+    /// returns whether readers are left.
+    pub fn remove(&self, key: &str, reader: &Arc<dyn FrameSink>) -> bool {
         let mut sinks = lock(&self.readers.sinks);
-        sinks.remove(key);
+        if sinks
+            .get(key)
+            .is_some_and(|s| std::ptr::addr_eq(Arc::as_ptr(s), Arc::as_ptr(reader)))
+        {
+            sinks.remove(key);
+        }
         !sinks.is_empty()
     }
 
@@ -188,9 +195,22 @@ mod tests {
     #[test]
     fn removing_the_last_reader_says_so() {
         let t = Tap::new("/t", Duration::from_secs(1));
-        t.add("meter", Arc::new(Log::default()));
-        t.add("adaptor/s", Arc::new(Log::default()));
-        assert!(t.remove("meter"), "the adaptor still reads");
-        assert!(!t.remove("adaptor/s"));
+        let (meter, relay): (Arc<dyn FrameSink>, Arc<dyn FrameSink>) =
+            (Arc::new(Log::default()), Arc::new(Log::default()));
+        t.add("meter", meter.clone());
+        t.add("adaptor/s", relay.clone());
+        assert!(t.remove("meter", &meter), "the adaptor still reads");
+        assert!(!t.remove("adaptor/s", &relay));
+    }
+
+    #[test]
+    fn a_replaced_reader_leaving_late_keeps_its_successor() {
+        let t = Tap::new("/t", Duration::from_secs(1));
+        let (old, new): (Arc<dyn FrameSink>, Arc<dyn FrameSink>) =
+            (Arc::new(Log::default()), Arc::new(Log::default()));
+        t.add("adaptor/s", old.clone());
+        t.add("adaptor/s", new.clone());
+        assert!(t.remove("adaptor/s", &old), "the new relay still reads");
+        assert!(!t.remove("adaptor/s", &new));
     }
 }
