@@ -484,6 +484,13 @@ fn resource_config(e: &mut Errors, path: &str, c: &ResourceConfig) {
         e.check(p.clone(), check_ros_name(node));
         e.positive(p, *v);
     }
+    for (node, w) in &c.cpu_weight {
+        let p = crate::yaml::join_key(&format!("{path}.cpuWeight"), node);
+        e.check(p.clone(), check_ros_name(node));
+        if !(1..=10_000).contains(w) {
+            e.add(p, format!("{w} is outside 1..=10000"));
+        }
+    }
     for (i, a) in c.adaptors.iter().enumerate() {
         let ap = format!("{path}.adaptors[{i}]");
         e.check(format!("{ap}.topic"), check_ros_name(&a.topic));

@@ -7,7 +7,9 @@ use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::Instant;
 
 use configbot_api::backoff::Backoff;
-use configbot_cgroups::{CgroupBackend, CgroupConfig, CpuLimit, CpuMax, CpuStats, NodeName};
+use configbot_cgroups::{
+    CgroupBackend, CgroupConfig, CpuLimit, CpuMax, CpuStats, CpuWeight, NodeName,
+};
 use configbot_manifests::AdaptorRate;
 use serde::{Deserialize, Serialize};
 use tokio::sync::{broadcast, watch};
@@ -62,6 +64,7 @@ struct NodeRt {
     usage_cpus: f64,
     stats: CpuStats,
     limit: Option<CpuMax>,
+    weight: Option<CpuWeight>,
 }
 
 /// A config put by the controller: CPU limits, and the adaptor rates per
@@ -89,6 +92,9 @@ pub struct NodeStatus {
     pub cgroup: PathBuf,
     pub cpu_usage_cpus: f64,
     pub cpu_limit: Option<CpuMax>,
+    /// CPU weight against the stack's other nodes (100: the default).
+    #[serde(default)]
+    pub cpu_weight: Option<CpuWeight>,
     pub stats: CpuStats,
     pub restarts: u32,
     pub stopped: bool,
@@ -132,6 +138,7 @@ impl Agent {
                     usage_cpus: 0.0,
                     stats: CpuStats::default(),
                     limit: None,
+                    weight: None,
                 },
             );
         }
@@ -583,6 +590,7 @@ impl Agent {
         for node in names {
             let stats = self.backend().stats(&node);
             let limit = self.backend().cpu_max(&node).ok();
+            let weight = self.backend().weight(&node).ok();
             let now = Instant::now();
             let mut st = self.st();
             let Some(rt) = st.nodes.get_mut(&node) else {
@@ -601,11 +609,15 @@ impl Agent {
                 rt.stats = s;
             }
             rt.limit = limit;
+            rt.weight = weight;
             let m = &self.inner.metrics;
             let label = [node.as_str()];
             m.usage.with_label_values(&label).set(rt.usage_cpus);
             let lim = limit.and_then(|l| l.to_limit().cpus).unwrap_or(-1.0);
             m.limit.with_label_values(&label).set(lim);
+            if let Some(w) = weight {
+                m.weight.with_label_values(&label).set(i64::from(w.v2()));
+            }
             m.throttled_periods
                 .with_label_values(&label)
                 .set(i64::try_from(rt.stats.nr_throttled).unwrap_or(i64::MAX));
@@ -657,6 +669,7 @@ impl Agent {
                 cgroup: self.backend().node_path(name),
                 cpu_usage_cpus: rt.usage_cpus,
                 cpu_limit: rt.limit,
+                cpu_weight: rt.weight,
                 stats: rt.stats,
                 restarts: rt.persisted.restarts,
                 stopped: rt.persisted.stopped,

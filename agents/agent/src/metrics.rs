@@ -8,6 +8,7 @@ pub struct Metrics {
     pub registry: Registry,
     pub usage: GaugeVec,
     pub limit: GaugeVec,
+    pub weight: IntGaugeVec,
     pub throttled_periods: IntGaugeVec,
     pub throttled_seconds: GaugeVec,
     pub restarts: IntCounterVec,
@@ -31,6 +32,13 @@ impl Metrics {
             Opts::new(
                 "configbot_agent_node_cpu_limit_cpus",
                 "CPU limit of the node's cgroup in CPUs; -1 = unlimited",
+            ),
+            node,
+        )?;
+        let weight = IntGaugeVec::new(
+            Opts::new(
+                "configbot_agent_node_cpu_weight",
+                "CPU weight of the node's cgroup against the stack's other nodes (cgroup v2 units; 100 = default)",
             ),
             node,
         )?;
@@ -71,6 +79,7 @@ impl Metrics {
         )?;
         registry.register(Box::new(usage.clone()))?;
         registry.register(Box::new(limit.clone()))?;
+        registry.register(Box::new(weight.clone()))?;
         registry.register(Box::new(throttled_periods.clone()))?;
         registry.register(Box::new(throttled_seconds.clone()))?;
         registry.register(Box::new(restarts.clone()))?;
@@ -80,6 +89,7 @@ impl Metrics {
             registry,
             usage,
             limit,
+            weight,
             throttled_periods,
             throttled_seconds,
             restarts,

@@ -46,6 +46,7 @@ async fn ros_nodes_are_adopted_limited_adapted_and_measured() {
     // Limit the busy node at once (keeps the shared machine free).
     let cfg = ResourceConfig {
         cpu: [("/burner".to_string(), 0.1)].into(),
+        cpu_weight: Default::default(),
         cpu_period_micros: Some(20_000),
         adaptors: vec![AdaptorRate {
             topic: "/chatter".into(),
@@ -395,6 +396,7 @@ async fn http_api_and_client_round_trip_over_the_unix_socket() {
     client
         .apply(&ResourceConfig {
             cpu: [("/camera".to_string(), 0.5)].into(),
+            cpu_weight: [("/camera".to_string(), 10_000)].into(),
             cpu_period_micros: Some(50_000),
             adaptors: vec![],
         })
@@ -402,6 +404,8 @@ async fn http_api_and_client_round_trip_over_the_unix_socket() {
         .unwrap();
     let max = rt.agent().backend().cpu_max(&node("/camera")).unwrap();
     assert_eq!((max.quota_us, max.period_us), (Some(25_000), 50_000));
+    let weight = rt.agent().backend().weight(&node("/camera")).unwrap();
+    assert_eq!(weight, configbot_cgroups::CpuWeight::MAX);
     let err = client
         .apply(&ResourceConfig {
             cpu: [("/ghost".to_string(), 0.5)].into(),

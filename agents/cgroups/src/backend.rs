@@ -43,6 +43,11 @@ pub trait CgroupBackend: Debug + Send + Sync {
     fn set_cpu_max(&self, node: &NodeName, max: CpuMax) -> Result<()>;
     /// Reads quota and period back.
     fn cpu_max(&self, node: &NodeName) -> Result<CpuMax>;
+    /// Writes the node's CPU weight against its sibling nodes (v2
+    /// `cpu.weight`, v1 `cpu.shares`).
+    fn set_weight(&self, node: &NodeName, weight: CpuWeight) -> Result<()>;
+    /// Reads the node's CPU weight back.
+    fn weight(&self, node: &NodeName) -> Result<CpuWeight>;
     /// Cumulative usage, throttling and (v2) pressure.
     fn stats(&self, node: &NodeName) -> Result<CpuStats>;
     /// Process ids in the node's cgroup (on v1, in either hierarchy: of a

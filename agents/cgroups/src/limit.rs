@@ -16,7 +16,8 @@ pub const MIN_QUOTA_US: u64 = 1_000;
 /// A sanity bound on a limit; far above any robot's core count.
 const MAX_CPUS: f64 = 1024.0;
 
-/// A CPU limit as configured: `cpus = None` means unlimited.
+/// A node's CPU setting as configured: a limit (`cpus = None` means
+/// unlimited) and a weight against the subtree's other nodes.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(rename_all = "camelCase")]
 pub struct CpuLimit {
@@ -26,6 +27,10 @@ pub struct CpuLimit {
     /// being frozen for a whole 100 ms window.
     #[serde(default = "default_period")]
     pub period_us: u64,
+    /// Share of a busy CPU against the other nodes of the subtree: when
+    /// nodes compete, each gets CPU in proportion to its weight.
+    #[serde(default)]
+    pub weight: CpuWeight,
 }
 
 fn default_period() -> u64 {
@@ -37,13 +42,14 @@ impl CpuLimit {
     pub const UNLIMITED: CpuLimit = CpuLimit {
         cpus: None,
         period_us: DEFAULT_PERIOD_US,
+        weight: CpuWeight::DEFAULT,
     };
 
     /// A limit of `cpus` CPUs with the default period.
     pub fn cpus(cpus: f64) -> Self {
         Self {
             cpus: Some(cpus),
-            period_us: DEFAULT_PERIOD_US,
+            ..Self::UNLIMITED
         }
     }
 
@@ -93,12 +99,13 @@ pub struct CpuMax {
 }
 
 impl CpuMax {
-    /// The limit back in CPUs.
+    /// The limit back in CPUs (at the default weight).
     pub fn to_limit(self) -> CpuLimit {
         CpuLimit {
             #[allow(clippy::cast_precision_loss)]
             cpus: self.quota_us.map(|q| q as f64 / self.period_us as f64),
             period_us: self.period_us,
+            weight: CpuWeight::DEFAULT,
         }
     }
 
@@ -156,13 +163,20 @@ pub struct CpuWeight(u32);
 impl CpuWeight {
     /// The kernel's default.
     pub const DEFAULT: CpuWeight = CpuWeight(100);
+    /// The largest weight: against a node at [`CpuWeight::DEFAULT`], 100 to 1.
+    pub const MAX: CpuWeight = CpuWeight(10_000);
 
     pub fn new(weight: u32) -> Result<Self> {
+        Self::named(weight, "subtree root")
+    }
+
+    /// A weight for `what` (a node), which the error names.
+    pub fn named(weight: u32, what: &str) -> Result<Self> {
         if (1..=10_000).contains(&weight) {
             Ok(Self(weight))
         } else {
             Err(Error::InvalidLimit {
-                node: "subtree root".into(),
+                node: what.into(),
                 reason: format!("cpu weight {weight} is outside 1..=10000"),
             })
         }
@@ -183,6 +197,12 @@ impl CpuWeight {
     pub fn from_v1_shares(shares: u64) -> Self {
         let w = (shares.saturating_mul(100)).div_ceil(1024);
         Self(u32::try_from(w.clamp(1, 10_000)).unwrap_or(10_000))
+    }
+}
+
+impl Default for CpuWeight {
+    fn default() -> Self {
+        Self::DEFAULT
     }
 }
 
@@ -236,10 +256,14 @@ mod tests {
             (Some(0.5), 500, None),     // period too short
         ];
         for (cpus, period_us, want) in cases {
-            let got = CpuLimit { cpus, period_us }
-                .to_cpu_max("/n")
-                .ok()
-                .map(|m| (m.quota_us, m.period_us));
+            let got = CpuLimit {
+                cpus,
+                period_us,
+                weight: CpuWeight::DEFAULT,
+            }
+            .to_cpu_max("/n")
+            .ok()
+            .map(|m| (m.quota_us, m.period_us));
             assert_eq!(got, want, "cpus {cpus:?} period {period_us}");
         }
     }

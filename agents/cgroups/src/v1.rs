@@ -122,6 +122,17 @@ impl CgroupBackend for V1Backend {
         })
     }
 
+    fn set_weight(&self, node: &NodeName, weight: CpuWeight) -> Result<()> {
+        write_file(
+            &self.cpu_file(node, "cpu.shares"),
+            &weight.v1_shares().to_string(),
+        )
+    }
+
+    fn weight(&self, node: &NodeName) -> Result<CpuWeight> {
+        read_shares(&self.cpu_file(node, "cpu.shares"))
+    }
+
     fn stats(&self, node: &NodeName) -> Result<CpuStats> {
         let mut s = CpuStats::default();
         let up = self.cpuacct.join(node.dir_name()).join("cpuacct.usage");
@@ -191,12 +202,7 @@ impl CgroupBackend for V1Backend {
     }
 
     fn root_weight(&self) -> Result<CpuWeight> {
-        let path = self.cpu.join("cpu.shares");
-        let shares: u64 = read_file(&path)?.trim().parse().map_err(|e| Error::Parse {
-            path: path.clone(),
-            reason: format!("{e}"),
-        })?;
-        Ok(CpuWeight::from_v1_shares(shares))
+        read_shares(&self.cpu.join("cpu.shares"))
     }
 }
 
@@ -226,4 +232,13 @@ pub(crate) fn list_nodes(dir: &Path) -> Result<Vec<NodeName>> {
     }
     out.sort();
     Ok(out)
+}
+
+/// Reads a `cpu.shares` file as a weight.
+fn read_shares(path: &Path) -> Result<CpuWeight> {
+    let shares: u64 = read_file(path)?.trim().parse().map_err(|e| Error::Parse {
+        path: path.to_path_buf(),
+        reason: format!("{e}"),
+    })?;
+    Ok(CpuWeight::from_v1_shares(shares))
 }

@@ -99,6 +99,14 @@ impl CgroupBackend for V2Backend {
         })
     }
 
+    fn set_weight(&self, node: &NodeName, weight: CpuWeight) -> Result<()> {
+        write_file(&self.file(node, "cpu.weight"), &weight.v2().to_string())
+    }
+
+    fn weight(&self, node: &NodeName) -> Result<CpuWeight> {
+        read_weight(&self.file(node, "cpu.weight"))
+    }
+
     fn stats(&self, node: &NodeName) -> Result<CpuStats> {
         let mut s = CpuStats::default();
         apply_cpu_stat(&mut s, &read_file(&self.file(node, "cpu.stat"))?, true);
@@ -131,11 +139,15 @@ impl CgroupBackend for V2Backend {
     }
 
     fn root_weight(&self) -> Result<CpuWeight> {
-        let path = self.root.join("cpu.weight");
-        let w: u32 = read_file(&path)?.trim().parse().map_err(|e| Error::Parse {
-            path: path.clone(),
-            reason: format!("{e}"),
-        })?;
-        CpuWeight::new(w)
+        read_weight(&self.root.join("cpu.weight"))
     }
+}
+
+/// Reads a `cpu.weight` file.
+fn read_weight(path: &Path) -> Result<CpuWeight> {
+    let w: u32 = read_file(path)?.trim().parse().map_err(|e| Error::Parse {
+        path: path.to_path_buf(),
+        reason: format!("{e}"),
+    })?;
+    CpuWeight::named(w, &path.display().to_string())
 }

@@ -24,6 +24,7 @@ fn fake_node(dir: &Path) {
     )
     .unwrap();
     fs::write(dir.join("cgroup.procs"), "").unwrap();
+    fs::write(dir.join("cpu.weight"), "100\n").unwrap();
 }
 
 #[test]
@@ -64,6 +65,7 @@ fn v2_formats_and_rollback_on_fake_root() {
         CpuLimit {
             cpus: Some(0.35),
             period_us: 20_000,
+            weight: CpuWeight::DEFAULT,
         }
         .to_cpu_max("/a")
         .unwrap(),
@@ -98,11 +100,12 @@ fn v2_formats_and_rollback_on_fake_root() {
     // Make b's cpu.max unwritable: apply must restore a and name b's file.
     fs::remove_file(root.join("node-b/cpu.max")).unwrap();
     fs::create_dir(root.join("node-b/cpu.max")).unwrap();
+    let protected = CpuLimit {
+        weight: CpuWeight::MAX,
+        ..CpuLimit::cpus(0.5)
+    };
     let config = CgroupConfig {
-        limits: BTreeMap::from([
-            (a.clone(), CpuLimit::cpus(0.5)),
-            (b.clone(), CpuLimit::cpus(0.5)),
-        ]),
+        limits: BTreeMap::from([(a.clone(), protected), (b.clone(), CpuLimit::cpus(0.5))]),
     };
     // Reading b's previous value already fails, before any write.
     let err = apply(&be, &config).unwrap_err();
@@ -143,6 +146,21 @@ fn v2_formats_and_rollback_on_fake_root() {
         fs::read_to_string(root.join("node-b/cpu.max")).unwrap(),
         "max 100000"
     );
+    // a's weight was written before b failed, and restored with its limit.
+    assert_eq!(
+        fs::read_to_string(root.join("node-a/cpu.weight")).unwrap(),
+        "100"
+    );
+
+    // A whole apply writes each node's weight (v2 cpu.weight) and reads it back.
+    let applied = apply(&be, &config).unwrap();
+    assert_eq!(applied[0].weight, CpuWeight::MAX);
+    assert_eq!(
+        fs::read_to_string(root.join("node-a/cpu.weight")).unwrap(),
+        "10000"
+    );
+    assert_eq!(be.weight(&a).unwrap(), CpuWeight::MAX);
+    assert_eq!(be.weight(&b).unwrap(), CpuWeight::DEFAULT);
 }
 
 /// Wraps a backend and fails its second `set_cpu_max` call with EACCES.
@@ -190,6 +208,12 @@ impl CgroupBackend for FailSecondWrite {
     }
     fn cpu_max(&self, n: &NodeName) -> configbot_cgroups::Result<CpuMax> {
         self.inner.cpu_max(n)
+    }
+    fn set_weight(&self, n: &NodeName, w: CpuWeight) -> configbot_cgroups::Result<()> {
+        self.inner.set_weight(n, w)
+    }
+    fn weight(&self, n: &NodeName) -> configbot_cgroups::Result<CpuWeight> {
+        self.inner.weight(n)
     }
     fn stats(&self, n: &NodeName) -> configbot_cgroups::Result<configbot_cgroups::CpuStats> {
         self.inner.stats(n)

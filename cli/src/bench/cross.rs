@@ -42,8 +42,9 @@ pub struct CarryOver {
     pub dropped: Vec<String>,
 }
 
-/// Keeps the CPU limits of nodes in `nodes` and the adaptor rates of edges
-/// (topic, subscriber) in `edges`; everything else is dropped and named (pure).
+/// Keeps the CPU limits and weights of nodes in `nodes` and the adaptor
+/// rates of edges (topic, subscriber) in `edges`; everything else is dropped
+/// and named (pure).
 pub fn carry_over(
     cfg: &ResourceConfig,
     nodes: &BTreeSet<String>,
@@ -59,6 +60,13 @@ pub fn carry_over(
             out.cpu.insert(node.clone(), *cpus);
         } else {
             dropped.push(format!("cpu {node}"));
+        }
+    }
+    for (node, w) in &cfg.cpu_weight {
+        if nodes.contains(node) {
+            out.cpu_weight.insert(node.clone(), *w);
+        } else {
+            dropped.push(format!("weight {node}"));
         }
     }
     for a in &cfg.adaptors {
@@ -245,6 +253,10 @@ mod tests {
                 .into_iter()
                 .map(|(n, c)| (n.to_string(), c))
                 .collect(),
+            cpu_weight: [("/nav", 10_000), ("/terrain", 10_000)]
+                .into_iter()
+                .map(|(n, w)| (n.to_string(), w))
+                .collect(),
             cpu_period_micros: Some(20_000),
             adaptors: vec![ad("/image", "/det", 4.0), ad("/points", "/terrain", 2.0)],
         };
@@ -256,7 +268,15 @@ mod tests {
         assert_eq!(c.config.cpu.keys().collect::<Vec<_>>(), ["/det", "/nav"]);
         assert_eq!(c.config.cpu_period_micros, Some(20_000));
         assert_eq!(c.config.adaptors, vec![ad("/image", "/det", 4.0)]);
-        assert_eq!(c.dropped, ["cpu /terrain", "adaptor /points>/terrain"]);
+        assert_eq!(c.config.cpu_weight.keys().collect::<Vec<_>>(), ["/nav"]);
+        assert_eq!(
+            c.dropped,
+            [
+                "cpu /terrain",
+                "weight /terrain",
+                "adaptor /points>/terrain"
+            ]
+        );
         // An adaptor whose subscriber exists but whose edge does not is dropped too.
         let only_nodes = carry_over(&cfg, &set(&["/nav", "/det", "/terrain"]), &BTreeSet::new());
         assert_eq!(only_nodes.config.cpu.len(), 3);

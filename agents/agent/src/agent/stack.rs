@@ -142,6 +142,7 @@ impl Agent {
                             usage_cpus: 0.0,
                             stats: CpuStats::default(),
                             limit: None,
+                            weight: None,
                         },
                     );
                 }

@@ -1,5 +1,6 @@
 //! `apply`: a [`ResourceConfig`] becomes one atomic CPU config for every node
-//! of the stack (listed nodes limited, the rest unlimited) and per-edge
+//! of the stack (listed nodes limited or weighted, the rest unlimited at the
+//! default weight) and per-edge
 //! adaptor rates (listed edges limited, edges limited before and not listed
 //! back to pass-through). The plan is pure ([`plan`]); the order of the IO is
 //! validate everything → CPU limits atomically → adaptor rates.
@@ -7,7 +8,7 @@
 use std::collections::{BTreeMap, BTreeSet};
 
 use configbot_api::graph::{AdaptorSetting, EdgeId};
-use configbot_cgroups::{CpuLimit, DEFAULT_PERIOD_US, NodeName};
+use configbot_cgroups::{CpuLimit, CpuWeight, DEFAULT_PERIOD_US, NodeName};
 use configbot_manifests::ResourceConfig;
 
 use super::NodeRuntime;
@@ -33,8 +34,8 @@ pub fn plan(stack_nodes: &BTreeSet<NodeName>, cfg: &ResourceConfig) -> Result<Pl
             (
                 n.clone(),
                 CpuLimit {
-                    cpus: None,
                     period_us,
+                    ..CpuLimit::UNLIMITED
                 },
             )
         })
@@ -45,6 +46,13 @@ pub fn plan(stack_nodes: &BTreeSet<NodeName>, cfg: &ResourceConfig) -> Result<Pl
             return Err(Error::UnknownNode(name.clone()));
         };
         l.cpus = Some(*cpus);
+    }
+    for (name, weight) in &cfg.cpu_weight {
+        let n = NodeName::new(name)?;
+        let Some(l) = limits.get_mut(&n) else {
+            return Err(Error::UnknownNode(name.clone()));
+        };
+        l.weight = CpuWeight::named(*weight, name)?;
     }
     for (n, l) in &limits {
         l.to_cpu_max(n.as_str())?;
@@ -136,6 +144,7 @@ mod tests {
     fn unlisted_nodes_are_unlimited_and_period_applies_to_all() {
         let cfg = ResourceConfig {
             cpu: BTreeMap::from([("/a".to_string(), 0.3)]),
+            cpu_weight: BTreeMap::from([("/b".to_string(), 10_000)]),
             cpu_period_micros: Some(20_000),
             adaptors: vec![AdaptorRate {
                 topic: "/t".into(),
@@ -146,8 +155,14 @@ mod tests {
         let p = plan(&nodes(&["/a", "/b"]), &cfg).unwrap();
         let a = &p.update.limits[&NodeName::new("/a").unwrap()];
         let b = &p.update.limits[&NodeName::new("/b").unwrap()];
-        assert_eq!((a.cpus, a.period_us), (Some(0.3), 20_000));
-        assert_eq!((b.cpus, b.period_us), (None, 20_000));
+        assert_eq!(
+            (a.cpus, a.period_us, a.weight),
+            (Some(0.3), 20_000, CpuWeight::DEFAULT)
+        );
+        assert_eq!(
+            (b.cpus, b.period_us, b.weight),
+            (None, 20_000, CpuWeight::MAX)
+        );
         assert_eq!(p.rates.len(), 1);
     }
 
@@ -161,6 +176,13 @@ mod tests {
         let e = plan(&nodes(&["/a"]), &cfg).unwrap_err().to_string();
         assert!(e.contains("/a"), "{e}");
         cfg.cpu.clear();
+        cfg.cpu_weight = BTreeMap::from([("/a".to_string(), 0)]);
+        let e = plan(&nodes(&["/a"]), &cfg).unwrap_err().to_string();
+        assert!(e.contains("/a") && e.contains("weight 0"), "{e}");
+        cfg.cpu_weight = BTreeMap::from([("/zz".to_string(), 200)]);
+        let e = plan(&nodes(&["/a"]), &cfg).unwrap_err().to_string();
+        assert!(e.contains("/zz"), "{e}");
+        cfg.cpu_weight.clear();
         cfg.adaptors.push(AdaptorRate {
             topic: "/img".into(),
             subscriber: "/det".into(),
