@@ -12,15 +12,6 @@
 //! get no search dimension ([`KnobSpace::pinned`]). Knobs that act on the same
 //! node (its CPU and its input adaptors) are reported as acting together
 //! ([`KnobSpace::together`]).
-//!
-//! Every config also gives the core nodes [`CORE_WEIGHT`] ([`KnobSpace::core`]),
-//! a fixed setting, not a knob: when the CPUs are contended the core nodes
-//! run first, and the non-core ones use what they leave. A limit alone
-//! protects the core only on average: measured on the real two-path stack
-//! at one tuned config (90 s each, same limits and rates), the core tracker
-//! missed 25 Hz in 11 of 90 one-second windows, dropping frames while the
-//! non-core detectors were busy (latency p99 151 ms), and in none with the
-//! core nodes weighted (p99 46 ms).
 
 use std::collections::BTreeMap;
 
@@ -79,15 +70,7 @@ pub struct KnobSpace {
     /// adaptors feeding it): each group's knobs move its output together.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub together: Vec<Vec<String>>,
-    /// The core nodes, which every config gives [`CORE_WEIGHT`].
-    #[serde(default, skip_serializing_if = "Vec::is_empty")]
-    pub core: Vec<String>,
 }
-
-/// The CPU weight of a core node in every config (cgroup v2 units; a
-/// non-core node keeps the default 100): under contention a core node gets
-/// 100 times a non-core one's share, so it runs as soon as it is runnable.
-pub const CORE_WEIGHT: u32 = 10_000;
 
 /// The knob space could not be built.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -246,17 +229,11 @@ pub fn derive(
         by_node.entry(acts_on(k)).or_default().push(k.name.clone());
     }
     let together = by_node.into_values().filter(|g| g.len() > 1).collect();
-    let core = stack
-        .nodes()
-        .filter(|(app, _)| app.core)
-        .map(|(_, n)| n.name.clone())
-        .collect();
     Ok(KnobSpace {
         knobs,
         period_micros: cpu.period_micros,
         pinned,
         together,
-        core,
     })
 }
 
@@ -312,11 +289,10 @@ impl KnobSpace {
     }
 
     /// The config of a point (knob values in order, each as set:
-    /// [`KnobDef::as_set`]; the core nodes at [`CORE_WEIGHT`]).
+    /// [`KnobDef::as_set`]).
     pub fn to_config(&self, x: &[f64]) -> ResourceConfig {
         let mut cfg = ResourceConfig {
             cpu_period_micros: Some(self.period_micros),
-            cpu_weight: self.core.iter().map(|n| (n.clone(), CORE_WEIGHT)).collect(),
             ..ResourceConfig::default()
         };
         let pinned = self.pinned.iter().map(|k| (k, k.min));
@@ -337,9 +313,8 @@ impl KnobSpace {
     }
 
     /// The config `current` as the knobs see it: the searched knobs at the
-    /// point `x`, the pinned ones and the weights as `current` has them
-    /// (unset when it does not set them): what a baseline measured, before
-    /// anything was pinned or weighted.
+    /// point `x`, the pinned ones as `current` has them (unset when it does
+    /// not set them): what a baseline measured, before anything was pinned.
     pub fn as_running(&self, x: &[f64], current: &ResourceConfig) -> ResourceConfig {
         let searched = KnobSpace {
             knobs: self.knobs.clone(),
@@ -347,7 +322,6 @@ impl KnobSpace {
             ..KnobSpace::default()
         };
         let mut cfg = searched.to_config(x);
-        cfg.cpu_weight = current.cpu_weight.clone();
         for k in &self.pinned {
             match &k.target {
                 KnobTarget::Cpu { node } => {
@@ -735,28 +709,6 @@ mod tests {
             let s = derive(&stack(), &spec, &graph(&running), &rates(), 2.0).unwrap();
             assert_eq!(names(&s), want, "{what}");
         }
-    }
-
-    #[test]
-    fn every_config_weights_the_core_nodes_and_a_baseline_shows_what_ran() {
-        let all = ["/lidar", "/planner", "/camera", "/detector", "/web"];
-        let s = derive(&stack(), &spec(), &graph(&all), &rates(), 2.0).unwrap();
-        let x = s.from_config(&ResourceConfig::default());
-        let want = BTreeMap::from([
-            ("/lidar".to_string(), CORE_WEIGHT),
-            ("/planner".to_string(), CORE_WEIGHT),
-        ]);
-        assert_eq!(s.to_config(&x).cpu_weight, want);
-        let corner = s.restrictive_corner(&x).unwrap();
-        assert_eq!(s.to_config(&corner).cpu_weight, want);
-        // The weights are no dimension: the point of a config ignores them.
-        assert_eq!(s.from_config(&s.to_config(&x)), x);
-        // A baseline that ran without weights is shown without them.
-        assert!(
-            s.as_running(&x, &ResourceConfig::default())
-                .cpu_weight
-                .is_empty()
-        );
     }
 
     #[test]
