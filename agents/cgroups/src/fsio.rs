@@ -30,6 +30,18 @@ pub(crate) fn read_file(path: &Path) -> Result<String> {
     })
 }
 
+/// Reads a control file that holds one number (`cpu.shares`, `cpu.weight`,
+/// `cpuacct.usage`).
+pub(crate) fn read_number<T: std::str::FromStr>(path: &Path) -> Result<T>
+where
+    T::Err: std::fmt::Display,
+{
+    read_file(path)?.trim().parse().map_err(|e| Error::Parse {
+        path: path.to_path_buf(),
+        reason: format!("{e}"),
+    })
+}
+
 /// Parses a file of one integer per line (`cgroup.procs`, `tasks`).
 pub(crate) fn read_ids(path: &Path) -> Result<Vec<u32>> {
     let text = read_file(path)?;

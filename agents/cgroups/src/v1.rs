@@ -10,7 +10,7 @@ use std::path::{Path, PathBuf};
 
 use crate::backend::{BackendKind, CgroupBackend};
 use crate::error::{Error, Result};
-use crate::fsio::{create_dir, read_file, read_ids, remove_dir, write_file};
+use crate::fsio::{create_dir, read_file, read_ids, read_number, remove_dir, write_file};
 use crate::limit::{CpuMax, CpuWeight};
 use crate::name::{NodeName, SubtreeRoot};
 use crate::stats::{CpuStats, apply_cpu_stat};
@@ -134,13 +134,10 @@ impl CgroupBackend for V1Backend {
     }
 
     fn stats(&self, node: &NodeName) -> Result<CpuStats> {
-        let mut s = CpuStats::default();
-        let up = self.cpuacct.join(node.dir_name()).join("cpuacct.usage");
-        let usage = read_file(&up)?;
-        s.usage_ns = usage.trim().parse().map_err(|e| Error::Parse {
-            path: up,
-            reason: format!("{e}"),
-        })?;
+        let mut s = CpuStats {
+            usage_ns: read_number(&self.cpuacct.join(node.dir_name()).join("cpuacct.usage"))?,
+            ..CpuStats::default()
+        };
         apply_cpu_stat(&mut s, &read_file(&self.cpu_file(node, "cpu.stat"))?, false);
         Ok(s)
     }
@@ -236,9 +233,5 @@ pub(crate) fn list_nodes(dir: &Path) -> Result<Vec<NodeName>> {
 
 /// Reads a `cpu.shares` file as a weight.
 fn read_shares(path: &Path) -> Result<CpuWeight> {
-    let shares: u64 = read_file(path)?.trim().parse().map_err(|e| Error::Parse {
-        path: path.to_path_buf(),
-        reason: format!("{e}"),
-    })?;
-    Ok(CpuWeight::from_v1_shares(shares))
+    read_number(path).map(CpuWeight::from_v1_shares)
 }

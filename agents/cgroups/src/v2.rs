@@ -4,7 +4,7 @@ use std::path::{Path, PathBuf};
 
 use crate::backend::{BackendKind, CgroupBackend};
 use crate::error::{Error, Result};
-use crate::fsio::{create_dir, read_file, read_ids, remove_dir, write_file};
+use crate::fsio::{create_dir, read_file, read_ids, read_number, remove_dir, write_file};
 use crate::limit::{CpuMax, CpuWeight};
 use crate::name::{NodeName, SubtreeRoot};
 use crate::stats::{CpuStats, apply_cpu_stat, parse_pressure};
@@ -145,9 +145,5 @@ impl CgroupBackend for V2Backend {
 
 /// Reads a `cpu.weight` file.
 fn read_weight(path: &Path) -> Result<CpuWeight> {
-    let w: u32 = read_file(path)?.trim().parse().map_err(|e| Error::Parse {
-        path: path.to_path_buf(),
-        reason: format!("{e}"),
-    })?;
-    CpuWeight::named(w, &path.display().to_string())
+    CpuWeight::named(read_number(path)?, &path.display().to_string())
 }
