@@ -12,6 +12,13 @@
 //! get no search dimension ([`KnobSpace::pinned`]). Knobs that act on the same
 //! node (its CPU and its input adaptors) are reported as acting together
 //! ([`KnobSpace::together`]).
+//!
+//! One knob acts on the core nodes' CPU weight ([`KnobTarget::CoreWeight`]):
+//! the non-core nodes' share `r` of a contended CPU against a core node,
+//! core weight = 100 / `r`. Lowering it restricts the non-core apps like
+//! their CPU and input knobs (a weighted core node runs first when the CPUs
+//! are busy), but it is searched, not fixed: core nodes whose work grows
+//! with CPU take what the non-core apps would use.
 
 use std::collections::BTreeMap;
 
@@ -29,6 +36,10 @@ pub enum KnobTarget {
     Cpu { node: String },
     /// Rate of the adaptor on one subscription edge, in Hz.
     Adaptor { topic: String, subscriber: String },
+    /// The non-core nodes' share of a contended CPU against each core node,
+    /// in (0, 1]: every core node's CPU weight is 100 / share (non-core
+    /// nodes keep the default 100).
+    CoreWeight,
 }
 
 /// One knob with its bounds.
@@ -50,7 +61,7 @@ impl KnobDef {
     /// configs read well in status.
     fn as_set(&self, v: f64) -> f64 {
         match self.target {
-            KnobTarget::Cpu { .. } => round(v, 1000.0),
+            KnobTarget::Cpu { .. } | KnobTarget::CoreWeight => round(v, 1000.0),
             KnobTarget::Adaptor { .. } => round(v, 100.0),
         }
     }
@@ -70,6 +81,21 @@ pub struct KnobSpace {
     /// adaptors feeding it): each group's knobs move its output together.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub together: Vec<Vec<String>>,
+    /// The core nodes, whose weight the [`KnobTarget::CoreWeight`] knob sets.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub core: Vec<String>,
+}
+
+/// The core weight knob's bounds: from 100 times a non-core node's weight
+/// (the kernel's largest, 10000) to equal weights.
+pub const CORE_SHARE_MIN: f64 = 0.01;
+
+/// The CPU weight of the core nodes at share `r` (pure).
+pub fn core_weight(r: f64) -> u32 {
+    // In 1..=10000 after the clamp, so the cast is exact.
+    #[allow(clippy::cast_possible_truncation, clippy::cast_sign_loss)]
+    let w = (100.0 / r.max(CORE_SHARE_MIN)).round().clamp(1.0, 10_000.0) as u32;
+    w
 }
 
 /// The knob space could not be built.
@@ -119,6 +145,9 @@ impl AppOf for StackApps<'_> {
 pub fn cpu_knob_name(node: &str) -> String {
     format!("cpu:{node}")
 }
+
+/// Name of the core nodes' weight knob.
+pub const CORE_WEIGHT_KNOB: &str = "weight:core";
 
 /// Name of an adaptor knob.
 pub fn adaptor_knob_name(topic: &str, subscriber: &str) -> String {
@@ -206,10 +235,26 @@ pub fn derive(
             });
         }
     }
+    // The core nodes' weight, after the nodes' and edges' knobs.
+    let running = |core: bool| {
+        stack
+            .nodes()
+            .any(|(app, n)| app.core == core && graph.nodes.contains_key(&n.name))
+    };
+    if running(true) && running(false) {
+        knobs.push(KnobDef {
+            name: CORE_WEIGHT_KNOB.into(),
+            target: KnobTarget::CoreWeight,
+            min: CORE_SHARE_MIN,
+            max: 1.0,
+            restricts_non_core: true,
+        });
+    }
     // A knob acting only on a non-core node that feeds no metric is pinned.
     let acts_on = |k: &KnobDef| match &k.target {
         KnobTarget::Cpu { node } => node.clone(),
         KnobTarget::Adaptor { subscriber, .. } => subscriber.clone(),
+        KnobTarget::CoreWeight => CORE_WEIGHT_KNOB.into(),
     };
     let idle = |k: &KnobDef| {
         if let KnobTarget::Adaptor { topic, subscriber } = &k.target
@@ -229,11 +274,17 @@ pub fn derive(
         by_node.entry(acts_on(k)).or_default().push(k.name.clone());
     }
     let together = by_node.into_values().filter(|g| g.len() > 1).collect();
+    let core = stack
+        .nodes()
+        .filter(|(app, _)| app.core)
+        .map(|(_, n)| n.name.clone())
+        .collect();
     Ok(KnobSpace {
         knobs,
         period_micros: cpu.period_micros,
         pinned,
         together,
+        core,
     })
 }
 
@@ -282,14 +333,16 @@ impl KnobSpace {
             .iter()
             .map(|k| match k.target {
                 KnobTarget::Cpu { .. } => configbot_optimizer::Knob::linear(&k.name, k.min, k.max),
-                KnobTarget::Adaptor { .. } => configbot_optimizer::Knob::log(&k.name, k.min, k.max),
+                KnobTarget::Adaptor { .. } | KnobTarget::CoreWeight => {
+                    configbot_optimizer::Knob::log(&k.name, k.min, k.max)
+                }
             })
             .collect();
         configbot_optimizer::Space::new(knobs).map_err(|e| KnobError::Space(e.to_string()))
     }
 
     /// The config of a point (knob values in order, each as set:
-    /// [`KnobDef::as_set`]).
+    /// [`KnobDef::as_set`]; the core nodes at [`CORE_WEIGHT`]).
     pub fn to_config(&self, x: &[f64]) -> ResourceConfig {
         let mut cfg = ResourceConfig {
             cpu_period_micros: Some(self.period_micros),
@@ -307,14 +360,19 @@ impl KnobSpace {
                     subscriber: subscriber.clone(),
                     rate_hz: k.as_set(v),
                 }),
+                KnobTarget::CoreWeight => {
+                    let w = core_weight(k.as_set(v));
+                    cfg.cpu_weight = self.core.iter().map(|n| (n.clone(), w)).collect();
+                }
             }
         }
         cfg
     }
 
     /// The config `current` as the knobs see it: the searched knobs at the
-    /// point `x`, the pinned ones as `current` has them (unset when it does
-    /// not set them): what a baseline measured, before anything was pinned.
+    /// point `x`, the pinned ones and the weights as `current` has them
+    /// (unset when it does not set them): what a baseline measured, before
+    /// anything was pinned or weighted.
     pub fn as_running(&self, x: &[f64], current: &ResourceConfig) -> ResourceConfig {
         let searched = KnobSpace {
             knobs: self.knobs.clone(),
@@ -322,6 +380,7 @@ impl KnobSpace {
             ..KnobSpace::default()
         };
         let mut cfg = searched.to_config(x);
+        cfg.cpu_weight = current.cpu_weight.clone();
         for k in &self.pinned {
             match &k.target {
                 KnobTarget::Cpu { node } => {
@@ -336,6 +395,7 @@ impl KnobSpace {
                         .filter(|a| a.topic == *topic && a.subscriber == *subscriber)
                         .cloned(),
                 ),
+                KnobTarget::CoreWeight => {}
             }
         }
         cfg
@@ -354,6 +414,11 @@ impl KnobSpace {
                         .iter()
                         .find(|a| a.topic == *topic && a.subscriber == *subscriber)
                         .map(|a| a.rate_hz),
+                    KnobTarget::CoreWeight => self
+                        .core
+                        .first()
+                        .and_then(|n| cfg.cpu_weight.get(n))
+                        .map(|&w| 100.0 / f64::from(w.max(1))),
                 };
                 v.unwrap_or(k.max).clamp(k.min, k.max)
             })
@@ -514,7 +579,7 @@ impl KnobSpace {
             .map(|(k, &v)| {
                 let v = v.clamp(k.min, k.max);
                 match k.target {
-                    KnobTarget::Adaptor { .. } if k.min > 0.0 => {
+                    KnobTarget::Adaptor { .. } | KnobTarget::CoreWeight if k.min > 0.0 => {
                         (v / k.min).ln() / (k.max / k.min).ln()
                     }
                     _ => (v - k.min) / (k.max - k.min),
@@ -632,8 +697,13 @@ mod tests {
             .collect()
     }
 
+    /// The node and edge knobs (the core weight's has its own test).
     fn names(s: &KnobSpace) -> Vec<&str> {
-        s.knobs.iter().map(|k| k.name.as_str()).collect()
+        s.knobs
+            .iter()
+            .filter(|k| k.target != KnobTarget::CoreWeight)
+            .map(|k| k.name.as_str())
+            .collect()
     }
 
     #[test]
@@ -709,6 +779,37 @@ mod tests {
             let s = derive(&stack(), &spec, &graph(&running), &rates(), 2.0).unwrap();
             assert_eq!(names(&s), want, "{what}");
         }
+    }
+
+    #[test]
+    fn the_core_weight_is_one_knob_that_restricts_the_non_core_apps() {
+        let all = ["/lidar", "/planner", "/camera", "/detector", "/web"];
+        let s = derive(&stack(), &spec(), &graph(&all), &rates(), 2.0).unwrap();
+        let i = s
+            .knobs
+            .iter()
+            .position(|k| k.target == KnobTarget::CoreWeight)
+            .unwrap();
+        assert!(s.knobs[i].restricts_non_core);
+        // A config without weights is the knob's top: equal weights.
+        let x = s.from_config(&ResourceConfig::default());
+        assert_eq!(x[i], 1.0);
+        let weights = |w: u32| {
+            BTreeMap::from([("/lidar".to_string(), w), ("/planner".to_string(), w)])
+        };
+        assert_eq!(s.to_config(&x).cpu_weight, weights(100));
+        // The restrictive corner weights the core nodes 100 to 1.
+        let corner = s.restrictive_corner(&x).unwrap();
+        assert_eq!(s.to_config(&corner).cpu_weight, weights(10_000));
+        let mut y = x.clone();
+        y[i] = 0.1;
+        assert_eq!(s.to_config(&y).cpu_weight, weights(1000));
+        assert_eq!(s.from_config(&s.to_config(&y))[i], 0.1);
+        // A baseline that ran without weights is shown without them.
+        assert!(s.as_running(&y, &ResourceConfig::default()).cpu_weight.is_empty());
+        // No non-core node running: no weight to search.
+        let core_only = derive(&stack(), &spec(), &graph(&["/lidar", "/planner"]), &rates(), 2.0).unwrap();
+        assert!(core_only.knobs.iter().all(|k| k.target != KnobTarget::CoreWeight));
     }
 
     #[test]
