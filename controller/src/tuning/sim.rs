@@ -1,6 +1,7 @@
 //! A deterministic simulated robot for tests and demos: ROS-like nodes with a
 //! CPU cost per message and per timer cycle, publish rates, per-node CPU
-//! limits, CFS-like sharing of N CPUs weighted by threads (water-filling), and
+//! limits, CFS-like sharing of N CPUs weighted by threads and cgroup CPU
+//! weight (water-filling), and
 //! per-edge adaptors — a generalisation of the optimizer crate's robot-stack
 //! problem. A node given a fraction f of its demand processes (and publishes)
 //! a fraction f of its input; the model iterates to a fixed point.
@@ -38,7 +39,8 @@ pub struct SimInput {
 pub struct SimNode {
     pub name: String,
     pub app: String,
-    /// Parallelism (CPUs it can use at most) and CFS weight.
+    /// Parallelism (CPUs it can use at most) and CFS weight (times the
+    /// config's `cpuWeight` / 100).
     pub threads: f64,
     /// A periodic loop at this rate (a sensor, a planner); `None`: driven by its first input.
     pub timer_hz: Option<f64>,
@@ -372,7 +374,13 @@ pub fn model(
                     .min(cfg.cpu.get(&node.name).copied().unwrap_or(f64::INFINITY))
             })
             .collect();
-        let weights: Vec<f64> = nodes.iter().map(|n| n.threads).collect();
+        // A node's cgroup weight (100 by default) scales its threads' share.
+        let weights: Vec<f64> = nodes
+            .iter()
+            .map(|n| {
+                n.threads * f64::from(cfg.cpu_weight.get(&n.name).copied().unwrap_or(100)) / 100.0
+            })
+            .collect();
         let alloc = share(&caps, &weights, cpus);
         for i in 0..n {
             let f = if demand[i] > 0.0 {
@@ -566,4 +574,37 @@ fn topic_entry<'a>(g: &'a mut Graph, t: &str) -> &'a mut TopicInfo {
         publishers: BTreeSet::new(),
         subscribers: BTreeSet::new(),
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn busy(name: &str) -> SimNode {
+        SimNode {
+            name: name.into(),
+            app: name.into(),
+            threads: 1.0,
+            timer_hz: Some(100.0),
+            cycle_cost: 0.02,
+            inputs: Vec::new(),
+            publishes: Some(format!("{name}/out")),
+        }
+    }
+
+    #[test]
+    fn a_heavier_cgroup_weight_takes_more_of_a_contended_cpu() {
+        // Two loops that want 2 CPUs each on 1 CPU.
+        let nodes = [busy("/a"), busy("/b")];
+        let idle = BTreeSet::new();
+        let even = model(&nodes, &idle, &ResourceConfig::default(), 1.0);
+        assert!((even.cpu["/a"] - 0.5).abs() < 1e-9, "{even:?}");
+        let cfg = ResourceConfig {
+            cpu_weight: [("/a".to_string(), 900)].into(),
+            ..ResourceConfig::default()
+        };
+        let weighted = model(&nodes, &idle, &cfg, 1.0);
+        assert!((weighted.cpu["/a"] - 0.9).abs() < 1e-9, "{weighted:?}");
+        assert!((weighted.cpu["/b"] - 0.1).abs() < 1e-9, "{weighted:?}");
+    }
 }

@@ -17,7 +17,7 @@ fn pct(v: Option<f64>) -> String {
     v.map_or("-".to_string(), |x| format!("{:.1}%", x * 100.0))
 }
 
-/// One-line summary of a config: `/node=0.5cpu /topic>/sub=4Hz`.
+/// One-line summary of a config: `/node=0.5cpu /topic>/sub=4Hz weight(/a,/b)=1000`.
 pub fn config_text(c: &ResourceConfig) -> String {
     let mut parts: Vec<String> = c
         .cpu
@@ -28,6 +28,16 @@ pub fn config_text(c: &ResourceConfig) -> String {
         c.adaptors
             .iter()
             .map(|a| format!("{}>{}={:.2}Hz", a.topic, a.subscriber, a.rate_hz)),
+    );
+    // Nodes of one weight together: `weight(/a,/b)=1000`.
+    let mut by_weight: std::collections::BTreeMap<u32, Vec<&str>> = Default::default();
+    for (n, w) in &c.cpu_weight {
+        by_weight.entry(*w).or_default().push(n);
+    }
+    parts.extend(
+        by_weight
+            .iter()
+            .map(|(w, nodes)| format!("weight({})={w}", nodes.join(","))),
     );
     if parts.is_empty() {
         "unlimited".into()
@@ -150,7 +160,7 @@ mod tests {
                 "baseline": {"index": 0, "config": {}, "values": {"cmd-vel": 18.8, "det": 20.0},
                              "satisfaction": 0.0, "objective": 1.0, "feasible": false},
                 "trialHistory": [
-                    {"index": 0, "config": {"cpu": {"/det": 0.5}}, "values": {"cmd-vel": 40.0, "det": 5.0},
+                    {"index": 0, "config": {"cpu": {"/det": 0.5}, "cpuWeight": {"/plan": 1000, "/lidar": 1000}}, "values": {"cmd-vel": 40.0, "det": 5.0},
                      "satisfaction": 1.0, "objective": 0.5, "feasible": true},
                     {"index": 1, "config": {"adaptors": [{"topic": "/image", "subscriber": "/det", "rateHz": 3.0}]},
                      "values": {"cmd-vel": 20.0}, "satisfaction": 0.0, "feasible": false, "censored": true}],
@@ -170,7 +180,8 @@ mod tests {
         assert!(lines[2].contains("CMD-VEL"), "{v}");
         assert!(lines[3].starts_with("baseline"), "{v}");
         assert!(
-            lines[4].starts_with("0*") && lines[4].ends_with("/det=0.500cpu"),
+            lines[4].starts_with("0*")
+                && lines[4].ends_with("/det=0.500cpu weight(/lidar,/plan)=1000"),
             "{v}"
         );
         assert!(
