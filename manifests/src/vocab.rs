@@ -202,6 +202,9 @@ vocabulary! {
         NearBoundary,
         /// A trial meets every target with every objective capped.
         ObjectivesCapped,
+        /// A trial capped every objective but missed a core target: the
+        /// initial design ends and the models choose the next trials.
+        DesignEnded,
         /// The optimizer's stopping rule ended the search.
         TuningStopped,
         /// A config failed its verification.

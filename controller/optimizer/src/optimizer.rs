@@ -808,6 +808,20 @@ impl Optimizer {
         Ok(models.predictions(&self.problem, &us))
     }
 
+    /// The initial design's points not yet proposed.
+    pub fn design_left(&self) -> usize {
+        self.design.len()
+    }
+
+    /// Drops the initial design's points not yet proposed: from the next
+    /// ask on, the models choose every proposal. For a caller that learned
+    /// where to look (say, a trial reached every objective's cap and missed
+    /// a constraint only just), when more space-filling would spend trials
+    /// far from it.
+    pub fn end_design(&mut self) {
+        self.design.clear();
+    }
+
     /// Predicted (mean, sd) of each constraint at a config; for diagnostics and tests.
     pub fn predict_constraints(&mut self, x: &[f64]) -> Result<Vec<(f64, f64)>> {
         let mut copy = self.clone();

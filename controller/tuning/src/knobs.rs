@@ -334,7 +334,8 @@ pub fn feeds_a_metric(
 }
 
 impl KnobSpace {
-    /// The optimizer's space: CPU knobs linear, adaptor rates on a log scale.
+    /// The optimizer's space: CPU knobs linear, adaptor rates and the core
+    /// weight on a log scale.
     pub fn optimizer_space(&self) -> Result<configbot_optimizer::Space, KnobError> {
         let knobs = self
             .knobs

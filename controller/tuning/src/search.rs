@@ -346,6 +346,30 @@ pub(crate) fn next_trial(
     if run.trials.len() < env.spec.tuning.max_trials as usize
         && let Some(o) = &mut run.optimizer
     {
+        // A complete trial with every objective at its cap that missed a
+        // core target: the configs worth a trial are next to it, with less
+        // for the non-core apps, so the models take over from the initial
+        // design. Measured on Basic-NAV (./x demo, 2026-11-26, in a
+        // variant whose design held the core weight): trial 5 capped and
+        // missed by its bound, the design spent three more trials far from
+        // it, and the models' first proposal after them capped and held (9
+        // trials, 139 s; 5 trials and 85 s in a run where trial 5 held).
+        if let Some(i) = last
+            && let t = &run.trials[i]
+            && !t.censored
+            && !t.feasible()
+            && t.eval.objective.is_some_and(|v| v >= 1.0 - 1e-9)
+            && o.design_left() > 0
+        {
+            out.push(normal(
+                Reason::DesignEnded,
+                format!(
+                    "trial {i} gives every objective its cap but misses a core target: the models choose the next trials near it ({} space-filling trials skipped)",
+                    o.design_left()
+                ),
+            ));
+            o.end_design();
+        }
         match o.ask() {
             Ok(Proposal::Try(x)) => {
                 let config = run.knobs.to_config(&x);

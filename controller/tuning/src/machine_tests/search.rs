@@ -660,6 +660,34 @@ fn a_run_whose_objectives_are_all_capped_stops_early_and_verifies() {
 }
 
 #[test]
+fn a_capped_trial_that_misses_a_core_target_ends_the_initial_design() {
+    let (st, sp) = (stack(), spec(0.0, 20));
+    let env = env(&st, &sp);
+    let (run, out) = baseline_then_first_trial(&env, &BAD, report(&OK, 2.0));
+    assert_eq!(reasons(&out), vec!["Trial"]);
+    assert!(run.optimizer.as_ref().unwrap().design_left() > 0);
+    // The design's next point gives the detector its 10 Hz cap and starves cmd.
+    let (run, _) = step(run, Input::Applied, &env);
+    let (run, out) = step(run, report(&[20.0; 5], 10.0), &env);
+    assert_eq!(reasons(&out), vec!["Trial", "DesignEnded"]);
+    assert!(!run.trials[1].feasible() && !run.trials[1].censored);
+    assert!(
+        event_text(&out[1]).contains("trial 1 gives every objective its cap"),
+        "{out:?}"
+    );
+    assert_eq!(run.optimizer.as_ref().unwrap().design_left(), 0);
+    assert_eq!(name(&run.state), "TrialApply", "the models' proposal");
+    // An uncapped miss leaves the design alone.
+    let (run, out) = baseline_then_first_trial(&env, &BAD, report(&OK, 2.0));
+    assert_eq!(reasons(&out), vec!["Trial"]);
+    let left = run.optimizer.as_ref().unwrap().design_left();
+    let (run, _) = step(run, Input::Applied, &env);
+    let (run, out) = step(run, report(&[20.0; 5], 5.0), &env);
+    assert_eq!(reasons(&out), vec!["Trial"]);
+    assert_eq!(run.optimizer.as_ref().unwrap().design_left(), left - 1);
+}
+
+#[test]
 fn a_trial_near_the_boundary_is_measured_longer_not_discarded() {
     let (st, sp) = (stack(), spec(0.0, 20));
     let env = env(&st, &sp);
