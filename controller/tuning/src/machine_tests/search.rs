@@ -17,12 +17,7 @@ fn early_stop_is_a_censored_observation() {
         report(&OK, 5.0),
         &env,
     );
-    assert_eq!(
-        run.knobs.knobs.len(),
-        4,
-        "two CPUs, one adaptor, the core weight: {:?}",
-        run.knobs
-    );
+    assert_eq!(run.knobs.knobs.len(), 3, "{:?}", run.knobs);
     let State::TrialApply { .. } = run.state else {
         panic!("{:?}", run.state)
     };
