@@ -358,7 +358,7 @@ pub(crate) fn next_trial(
             && let t = &run.trials[i]
             && !t.censored
             && !t.feasible()
-            && t.eval.objective.is_some_and(|v| v >= 1.0 - 1e-9)
+            && objective_at_cap(t)
             && o.design_left() > 0
         {
             out.push(normal(
@@ -420,7 +420,13 @@ pub const EI_NEGLIGIBLE: f64 = 0.005;
 /// Whether a trial is feasible with every objective at its cap (or the spec
 /// has no objectives): no other config can do better.
 pub fn all_capped(t: &TrialRecord) -> bool {
-    t.feasible() && t.eval.objective.is_none_or(|o| o >= 1.0 - 1e-9)
+    t.feasible() && (t.eval.objective.is_none() || objective_at_cap(t))
+}
+
+/// Whether a trial measured its scalarised objective at the cap (every
+/// objective at its target); false for a spec without objectives.
+fn objective_at_cap(t: &TrialRecord) -> bool {
+    t.eval.objective.is_some_and(|o| o >= 1.0 - 1e-9)
 }
 
 /// Trials whose objective is within this of the best count as equally good:
