@@ -209,6 +209,9 @@ vocabulary! {
         TuningStopped,
         /// A config failed its verification.
         VerificationFailed,
+        /// A verification missed in bursts: the core nodes are weighted
+        /// from now on and the candidate is verified again.
+        CoreWeighted,
         /// A rejected best trial is verified again with its knobs backed off.
         BackingOff,
         /// A held config tipped, or a measured trial promises more than a

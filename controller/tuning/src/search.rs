@@ -523,7 +523,7 @@ pub(crate) fn finish(
         }
         let verify = State::VerifyApply {
             candidate: Candidate::Trial { index },
-            config,
+            config: run.knobs.weigh(config),
         };
         return drain_first(run, env, verify);
     }
@@ -535,7 +535,7 @@ pub(crate) fn finish(
     {
         let verify = State::VerifyApply {
             candidate: Candidate::Trial { index },
-            config: run.trials[index].config.clone(),
+            config: run.knobs.weigh(run.trials[index].config.clone()),
         };
         return drain_first(run, env, verify);
     }

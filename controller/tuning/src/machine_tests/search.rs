@@ -232,6 +232,63 @@ fn a_verification_short_of_the_bar_is_measured_on_to_the_minute() {
     assert_eq!(name(&failed.state), "VerifyApply");
 }
 
+/// A verification that misses windows while every core mean holds (the
+/// non-core apps burst; the core nodes are not short of CPU) weights the
+/// core nodes: the same trial is verified again with them at
+/// [`knobs::CORE_WEIGHT`], and every config after it is weighted, its
+/// back-offs included; the unweighted failure is forgotten. A verification
+/// that misses on average backs off without weights.
+#[test]
+fn a_verification_that_misses_in_bursts_weights_the_core_nodes_and_verifies_again() {
+    let (st, sp) = (stack(), spec(1.0, 5));
+    let env = env(&st, &sp);
+    let mut run = with_two_trials(&env);
+    run.knobs.core = vec!["/planner".into()];
+    let mut out = Vec::new();
+    run.state = finish(&mut run, &env, &env.defs(), &mut out);
+    let weights = std::collections::BTreeMap::from([("/planner".to_string(), knobs::CORE_WEIGHT)]);
+    let mut burst = [40.0; 10];
+    burst[3] = 20.0;
+    let (weighted, out) = verify(run.clone(), &env, &burst);
+    assert_eq!(reasons(&out), vec!["CoreWeighted"]);
+    assert!(
+        event_text(&out[0]).contains(
+            "trial 1 held 90.0 % of the windows while every core mean held its target (cmd 38.0)"
+        ),
+        "{out:?}"
+    );
+    assert!(weighted.knobs.weighted);
+    assert!(weighted.rejected.is_empty() && weighted.failed_verifications.is_empty());
+    let State::VerifyApply {
+        candidate: Candidate::Trial { index: 1 },
+        config,
+    } = &weighted.state
+    else {
+        panic!("{:?}", weighted.state)
+    };
+    assert_eq!(config.cpu_weight, weights);
+    assert_eq!(config.cpu, weighted.trials[1].config.cpu, "the same limits");
+
+    let (backed, out) = verify(weighted, &env, &burst);
+    assert_eq!(reasons(&out), vec!["VerificationFailed", "BackingOff"]);
+    let State::VerifyApply {
+        candidate: Candidate::Backoff(_),
+        config,
+    } = &backed.state
+    else {
+        panic!("{:?}", backed.state)
+    };
+    assert_eq!(config.cpu_weight, weights, "a back-off stays weighted");
+
+    let (unweighted, out) = verify(run, &env, &BAD);
+    assert_eq!(reasons(&out), vec!["VerificationFailed", "BackingOff"]);
+    assert!(!unweighted.knobs.weighted);
+    let State::VerifyApply { config, .. } = &unweighted.state else {
+        panic!("{:?}", unweighted.state)
+    };
+    assert!(config.cpu_weight.is_empty(), "{config:?}");
+}
+
 #[test]
 fn a_best_trial_failing_verification_is_backed_off_before_the_next_best() {
     let (st, sp) = (stack(), spec(1.0, 5));
