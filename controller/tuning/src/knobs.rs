@@ -15,8 +15,8 @@
 //!
 //! The core nodes' CPU weight is no knob: a run starts with every node at
 //! the same weight and gives the core nodes [`CORE_WEIGHT`] in every config
-//! from the moment a verification shows bursts ([`KnobSpace::weighted`],
-//! set by `outcome::verified` on `outcome::bursts`). Measured both ways
+//! from the moment a trial or a verification misses in bursts
+//! ([`KnobSpace::weighted`], set by `outcome::weigh_on_bursts`). Measured both ways
 //! on this machine class (README, sessions 23 and 24): weighted in every
 //! config, the real stacks' core trackers stopped dropping frames when the
 //! non-core detectors were busy at once, but Basic-NAV's detector lost its

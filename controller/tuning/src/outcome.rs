@@ -1,7 +1,7 @@
 //! Pure helpers around a run's outcome: the optimizer problem built from the
 //! knobs and metrics, trials as optimizer observations and as library trials,
-//! verification of a candidate config (and the core nodes' weight it may
-//! call for: [`bursts`]), remediation (which apps, how, which topics to
+//! verification of a candidate config, the core nodes' weight that a trial
+//! or verification missing in bursts calls for ([`weigh_on_bursts`]), remediation (which apps, how, which topics to
 //! record), and the Unsat explanation (which constraint, the best value
 //! reached, what to relax).
 
@@ -656,28 +656,28 @@ pub fn bursts(defs: &[MetricDef], eval: &measure::Evaluation) -> bool {
             .all(|d| eval.means.get(&d.name).is_some_and(|&m| d.holds(m)))
 }
 
-/// A verification of `candidate` missed in bursts ([`bursts`]): from now on
-/// every config of the run gives the core nodes [`super::knobs::CORE_WEIGHT`]
-/// ([`KnobSpace::weighted`]), and the same candidate is verified again with
-/// it before anything is backed off. The run's failed verifications and the
-/// edges they left were measured unweighted and are dropped; the trials
-/// stay (a weight only helps the core nodes, so a trial that held still
-/// holds). Weighting only on this evidence keeps a stack whose core
-/// verifications miss on average, or not at all, unweighted: on Basic-NAV
-/// weighted core nodes cost the detector its objective (README, session 23).
-fn weigh_core(
+/// Weights the run's core nodes when `eval`, a complete measurement of
+/// `what` (a trial, or a verification's candidate), missed in bursts
+/// ([`bursts`]) and the run is not weighted yet: from now on every config
+/// of the run gives them [`super::knobs::CORE_WEIGHT`]
+/// ([`KnobSpace::weighted`]). Returns whether it did. The trials measured
+/// before stay as measured (a weight only helps the core nodes, so a trial
+/// that held still holds). Weighting only on this evidence keeps a stack
+/// whose core targets are missed on average, or not at all, unweighted: on
+/// Basic-NAV weighted core nodes cost the detector its objective (README,
+/// session 23).
+pub fn weigh_on_bursts(
     run: &mut Run,
-    env: &Env<'_>,
     defs: &[MetricDef],
-    candidate: Candidate,
-    config: ResourceConfig,
+    what: &str,
     eval: &measure::Evaluation,
+    then: &str,
     out: &mut Vec<Output>,
-) -> State {
+) -> bool {
+    if run.knobs.weighted || run.knobs.core.is_empty() || !bursts(defs, eval) {
+        return false;
+    }
     run.knobs.weighted = true;
-    run.failed_verifications.clear();
-    run.edges.clear();
-    let config = run.knobs.weigh(config);
     let means: Vec<String> = defs
         .iter()
         .filter(|d| d.core)
@@ -692,14 +692,29 @@ fn weigh_core(
     out.push(normal(
         Reason::CoreWeighted,
         format!(
-            "{} held {:.1} % of the windows while every core mean held its target ({}): the core nodes miss when the non-core apps burst, not for want of CPU; verifying it again with the core nodes ({}) at CPU weight {}, as every config from now on",
-            candidate.text(),
+            "{what} held {:.1} % of the windows while every core mean held its target ({}): the core nodes miss when the non-core apps burst, not for want of CPU; every config from now on gives the core nodes ({}) CPU weight {}{then}",
             eval.satisfaction * 100.0,
             means.join(", "),
             run.knobs.core.join(", "),
             super::knobs::CORE_WEIGHT
         ),
     ));
+    true
+}
+
+/// A verification of `candidate` missed in bursts and weighted the run
+/// ([`weigh_on_bursts`]): the same candidate is verified again, weighted,
+/// before anything is backed off. The run's failed verifications and the
+/// edges they left were measured unweighted and are dropped.
+fn verify_weighted(
+    run: &mut Run,
+    env: &Env<'_>,
+    candidate: Candidate,
+    config: ResourceConfig,
+) -> State {
+    run.failed_verifications.clear();
+    run.edges.clear();
+    let config = run.knobs.weigh(config);
     drain_first(run, env, State::VerifyApply { candidate, config })
 }
 
@@ -792,11 +807,16 @@ pub fn verified(
         };
     }
     if matches!(candidate, Candidate::Trial { .. } | Candidate::Backoff(_))
-        && !run.knobs.weighted
-        && !run.knobs.core.is_empty()
-        && bursts(defs, &eval)
+        && weigh_on_bursts(
+            run,
+            defs,
+            &candidate.text(),
+            &eval,
+            "; verifying it again",
+            out,
+        )
     {
-        return weigh_core(run, env, defs, candidate, config, &eval, out);
+        return verify_weighted(run, env, candidate, config);
     }
     match candidate {
         Candidate::Trial { index } => {

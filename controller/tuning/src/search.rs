@@ -13,7 +13,7 @@ use super::knobs::{self, KnobSpace};
 use super::library;
 use super::machine::{Candidate, Env, Output, Run, SATISFIED, State, TrialRecord, normal, warning};
 use super::measure::{self, MetricDef};
-use super::outcome::{observation, problem, remediate, unsat_reason};
+use super::outcome::{self, observation, problem, remediate, unsat_reason};
 use super::settle;
 
 /// One more settle measurement: `None` when the settle is over (with an
@@ -296,6 +296,10 @@ pub(crate) fn record_trial(
             if censored { " (stopped early)" } else { "" }
         ),
     ));
+    let what = format!("trial {}", run.trials.len());
+    if !censored {
+        outcome::weigh_on_bursts(run, defs, &what, &rec.eval, "", out);
+    }
     run.trials.push(rec);
 }
 
