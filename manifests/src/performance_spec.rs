@@ -239,9 +239,7 @@ pub struct Tuning {
     /// Whether tuning may run now (a task executive can also pause it by annotation).
     #[serde(default = "yes")]
     pub allowed: bool,
-    /// Profiling window of one trial, in seconds: the least. A trial is
-    /// longer when a rate objective's target is too slow to count ten of
-    /// its messages in it (up to 30 s: a 0.5 Hz objective makes 20 s trials).
+    /// Profiling window of one trial, in seconds.
     #[serde(default = "default_trial_seconds")]
     pub trial_seconds: f64,
     /// Time to let a new config settle before profiling, in seconds. From 2 s

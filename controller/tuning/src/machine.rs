@@ -93,13 +93,8 @@ impl Env<'_> {
     fn ms(s: f64) -> u64 {
         ((s * 1000.0).round() as u64).max(1000)
     }
-    /// How long a trial (and the baseline) measures: long enough to count
-    /// the slowest rate objective ([`measure::trial_seconds`]).
     fn trial_ms(&self) -> u64 {
-        Self::ms(measure::trial_seconds(
-            &self.defs(),
-            self.spec.tuning.trial_seconds,
-        ))
+        Self::ms(self.spec.tuning.trial_seconds)
     }
     /// How long a verification measures: a violation window and two
     /// trials, or [`NOISY_VERIFY_TRIALS`] trials once the run has seen the
@@ -126,10 +121,9 @@ impl Env<'_> {
     }
     /// How long a trial near the boundary is measured at most (see
     /// [`measure::near_boundary`]): enough windows for the count rule, and at
-    /// least twice the spec's trial (a trial made longer for a slow
-    /// objective already has more windows than the rule needs).
+    /// least twice the trial.
     fn extended_trial_ms(&self) -> u64 {
-        (measure::BOUNDARY_WINDOWS as u64 * 1000).max(2 * Self::ms(self.spec.tuning.trial_seconds))
+        (measure::BOUNDARY_WINDOWS as u64 * 1000).max(2 * self.trial_ms())
     }
     fn startup_timeout_ms(&self) -> u64 {
         (self.spec.tuning.startup_timeout_seconds * 1000.0).round() as u64

@@ -63,33 +63,6 @@ pub const BAR_SATISFACTION: f64 = 0.995;
 /// stack's best region); it is measured over the whole minute instead.
 pub const BAR_Z: f64 = 2.92;
 
-/// Messages of its slowest rate objective, at that objective's target, a
-/// trial counts at least ([`trial_seconds`]). A rate is a count over the
-/// trial, so one message more or less moves it by 1/count: with ten, by a
-/// tenth of the cap at most. Measured on the real two-path stack
-/// (2026-11-26): its 0.5 Hz circles objective counted 1–3 messages in a
-/// 5 s trial, trial objectives moved in steps of 0.2–0.4, and the trials
-/// each run verified had read 0.4–0.5 where the minute after read 0.2–0.3.
-pub const OBJECTIVE_MESSAGES: f64 = 10.0;
-/// The longest a trial is made for a slow objective ([`trial_seconds`]).
-pub const MAX_TRIAL_SECONDS: f64 = 30.0;
-
-/// How long a trial measures (pure): the spec's `trialSeconds`, or longer
-/// when a rate objective is too slow for that to count
-/// [`OBJECTIVE_MESSAGES`] of its messages at its target, up to
-/// [`MAX_TRIAL_SECONDS`]. Constraints need no longer trials: their windows
-/// are judged one by one, and a trial near their boundary is measured on
-/// ([`near_boundary`]).
-pub fn trial_seconds(defs: &[MetricDef], spec_seconds: f64) -> f64 {
-    let slowest = defs
-        .iter()
-        .filter(|d| !d.core && d.at_least && d.target > 0.0)
-        .filter(|d| matches!(d.probe, Probe::TopicRate { .. }))
-        .map(|d| OBJECTIVE_MESSAGES / d.target)
-        .fold(0.0, f64::max);
-    spec_seconds.max(slowest.min(MAX_TRIAL_SECONDS))
-}
-
 /// A metric of the spec, resolved against the stack.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct MetricDef {
@@ -442,33 +415,6 @@ pub fn concat(a: &MeasureReport, b: &MeasureReport) -> MeasureReport {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn a_trial_counts_ten_messages_of_its_slowest_rate_objective() {
-        let defs = |targets: &[f64]| -> Vec<MetricDef> {
-            let mut d = vec![MetricDef::rate_at_least("c", "nav", "/cmd", 0.2, true)];
-            d.extend(
-                targets
-                    .iter()
-                    .map(|t| MetricDef::rate_at_least("o", "det", "/o", *t, false)),
-            );
-            d
-        };
-        assert_eq!(trial_seconds(&defs(&[]), 5.0), 5.0, "a core target alone");
-        assert_eq!(
-            trial_seconds(&defs(&[3.0, 15.0]), 5.0),
-            5.0,
-            "3 Hz: 15 in 5 s"
-        );
-        assert_eq!(trial_seconds(&defs(&[2.0, 1.0, 4.0]), 5.0), 10.0);
-        assert_eq!(trial_seconds(&defs(&[20.0, 0.5]), 5.0), 20.0);
-        assert_eq!(trial_seconds(&defs(&[0.05]), 5.0), MAX_TRIAL_SECONDS);
-        assert_eq!(
-            trial_seconds(&defs(&[0.5]), 40.0),
-            40.0,
-            "the spec's, when longer"
-        );
-    }
     use configbot_api::measure::ProbeSeries;
 
     fn def(name: &str, core: bool, at_least: bool, target: f64) -> MetricDef {
