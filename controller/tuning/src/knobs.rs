@@ -16,12 +16,12 @@
 //! The core nodes' CPU weight is no knob: a run starts with every node at
 //! the same weight and gives the core nodes [`CORE_WEIGHT`] in every config
 //! from the moment a trial or a verification misses in bursts
-//! ([`KnobSpace::weighted`], set by `outcome::weigh_on_bursts`). Measured both ways
-//! on this machine class (README, sessions 23 and 24): weighted in every
-//! config, the real stacks' core trackers stopped dropping frames when the
-//! non-core detectors were busy at once, but Basic-NAV's detector lost its
-//! objective; searched as a knob, the extra dimension cost the real nodelet
-//! stack its objective.
+//! ([`KnobSpace::weighted`], set by `outcome::weigh_on_bursts`). Measured
+//! two other ways on this machine class (README, sessions 23 and 24):
+//! weighted in every config, the real stacks' core trackers stopped
+//! dropping frames when the non-core detectors were busy at once, but
+//! Basic-NAV's detector lost its objective; searched as a knob, the extra
+//! dimension cost the real nodelet stack its objective.
 
 use std::collections::BTreeMap;
 
@@ -328,9 +328,9 @@ impl KnobSpace {
         self.core.iter().map(|n| (n.clone(), CORE_WEIGHT)).collect()
     }
 
-    /// `cfg` (a trial's config, measured before the run was weighted, or
-    /// not) as the run applies it now: with [`KnobSpace::core_weights`]
-    /// once [`KnobSpace::weighted`], as it is before.
+    /// A trial's config as the run applies it now: with the core nodes'
+    /// weights once [`KnobSpace::weighted`] (the trial may have been
+    /// measured before that), unchanged before.
     pub fn weigh(&self, mut cfg: ResourceConfig) -> ResourceConfig {
         if self.weighted {
             cfg.cpu_weight = self.core_weights();

@@ -1,9 +1,9 @@
 //! Pure helpers around a run's outcome: the optimizer problem built from the
 //! knobs and metrics, trials as optimizer observations and as library trials,
 //! verification of a candidate config, the core nodes' weight that a trial
-//! or verification missing in bursts calls for ([`weigh_on_bursts`]), remediation (which apps, how, which topics to
-//! record), and the Unsat explanation (which constraint, the best value
-//! reached, what to relax).
+//! or verification missing in bursts calls for ([`weigh_on_bursts`]),
+//! remediation (which apps, how, which topics to record), and the Unsat
+//! explanation (which constraint, the best value reached, what to relax).
 
 use std::collections::BTreeSet;
 
@@ -647,7 +647,9 @@ pub fn after_tip(
 /// two-path stack (2026-11-26): verifications of trials whose every window
 /// held missed 18–24 Hz windows against 25 at a mean of 28–30 Hz, and a
 /// config that missed 11 of 90 windows unweighted missed none with the
-/// core nodes weighted ([`super::knobs::CORE_WEIGHT`]).
+/// core nodes weighted ([`super::knobs::CORE_WEIGHT`]); three runs that
+/// weighted on this rule after their second or third trial had every one
+/// of their 53 later trials hold every window.
 pub fn bursts(defs: &[MetricDef], eval: &measure::Evaluation) -> bool {
     eval.satisfaction < 1.0
         && defs
