@@ -330,6 +330,10 @@ async fn oracle(
         }
         let mut verified = Vec::new();
         let mut best = None;
+        let weighted_space = KnobSpace {
+            weighted: true,
+            ..space.clone()
+        };
         for i in oracle_candidates(&configs) {
             let mut config = configs[i].config.clone();
             let mut weighted = false;
@@ -362,11 +366,7 @@ async fn oracle(
                     row.satisfaction * 100.0
                 );
                 weighted = true;
-                config.cpu_weight = KnobSpace {
-                    weighted: true,
-                    ..space.clone()
-                }
-                .core_weights();
+                config = weighted_space.weigh(config);
             }
             if best.is_some() {
                 break;
