@@ -207,6 +207,9 @@ vocabulary! {
         DesignEnded,
         /// The optimizer's stopping rule ended the search.
         TuningStopped,
+        /// A trial is verified with the input of non-core apps whose
+        /// objectives measured more than counts cut down to what does.
+        TrimmingSurplus,
         /// A config failed its verification.
         VerificationFailed,
         /// A verification missed in bursts: the core nodes are weighted

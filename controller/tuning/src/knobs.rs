@@ -53,6 +53,12 @@ pub struct KnobDef {
     /// cannot hurt a core service (see `machine::every_config_as_safe_as`).
     #[serde(default)]
     pub restricts_non_core: bool,
+    /// The objectives (non-core metrics) the knob's node works for: those
+    /// a path of topics leads to from it, or, for an input a non-core app
+    /// claims (`App::inputs`), the claiming apps' objectives. What
+    /// [`KnobSpace::trimmed`] may take from it is judged by them alone.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub feeds: Vec<String>,
 }
 
 impl KnobDef {
@@ -95,6 +101,14 @@ pub struct KnobSpace {
 /// limits and rates: the core tracker missed 25 Hz in 11 of 90 windows
 /// unweighted (latency p99 151 ms) and in none weighted (p99 46 ms).
 pub const CORE_WEIGHT: u32 = 10_000;
+
+/// How far above the level at which it stops counting a trimmed objective
+/// is kept ([`KnobSpace::trimmed`]): a short window counts a 1 Hz output
+/// to ±20 %, and the level is the least of such counts.
+pub const TRIM_HEADROOM: f64 = 1.5;
+/// A trim that keeps more than this share of an input is not made: it
+/// frees too little CPU to be worth a config that was not measured.
+pub const TRIM_BELOW: f64 = 0.8;
 
 /// The knob space could not be built.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -160,6 +174,7 @@ pub fn derive(
 ) -> Result<KnobSpace, KnobError> {
     let cpu = &spec.knobs.cpu;
     let feeds = feeds_a_metric(graph, spec);
+    let objectives_of = objectives_fed(stack, spec, graph);
     let claimed = claimed_inputs(stack, spec);
     let core_of: BTreeMap<&str, bool> = stack
         .nodes()
@@ -192,6 +207,7 @@ pub fn derive(
             min,
             max,
             restricts_non_core: !app.core,
+            feeds: objectives_of(&node.name, None),
         });
     }
     let a = &spec.knobs.adaptors;
@@ -218,6 +234,7 @@ pub fn derive(
                 continue;
             }
             let restricts_non_core = apps.is_core(&e.subscriber) == Some(false) || apps.claims(&e);
+            let feeds = objectives_of(&e.subscriber, Some(&e));
             knobs.push(KnobDef {
                 name: adaptor_knob_name(&e.topic, &e.subscriber),
                 target: KnobTarget::Adaptor {
@@ -227,6 +244,7 @@ pub fn derive(
                 min: a.min_rate_hz,
                 max: source,
                 restricts_non_core,
+                feeds,
             });
         }
     }
@@ -275,21 +293,30 @@ pub fn feeds_a_metric(
     graph: &Graph,
     spec: &PerformanceSpecSpec,
 ) -> std::collections::BTreeSet<String> {
+    spec.metrics
+        .iter()
+        .flat_map(|m| upstream(graph, m))
+        .collect()
+}
+
+/// The nodes whose work can reach metric `m` (pure): the publishers of its
+/// topic (or the node of its CPU metric), and every node upstream of them.
+/// Liveness topics (nodelet bonds) carry no data: a loader process that
+/// only exchanges heartbeats with its manager feeds nothing.
+fn upstream(
+    graph: &Graph,
+    m: &configbot_manifests::performance_spec::Metric,
+) -> std::collections::BTreeSet<String> {
     use std::collections::BTreeSet;
     let mut reached: BTreeSet<String> = BTreeSet::new();
-    for m in &spec.metrics {
-        if let Some(t) = &m.source.topic_rate
-            && let Some(info) = graph.topics.get(&t.topic)
-        {
-            reached.extend(info.publishers.iter().cloned());
-        }
-        if let Some(c) = &m.source.cpu_usage {
-            reached.insert(c.node.clone());
-        }
+    if let Some(t) = &m.source.topic_rate
+        && let Some(info) = graph.topics.get(&t.topic)
+    {
+        reached.extend(info.publishers.iter().cloned());
     }
-    // Walk upstream: the publishers of every topic a reached node subscribes
-    // to. Liveness topics (nodelet bonds) carry no data: a loader process
-    // that only exchanges heartbeats with its manager feeds nothing.
+    if let Some(c) = &m.source.cpu_usage {
+        reached.insert(c.node.clone());
+    }
     let mut frontier: Vec<String> = reached.iter().cloned().collect();
     while let Some(n) = frontier.pop() {
         for t in graph.topics.values().filter(|t| {
@@ -303,6 +330,50 @@ pub fn feeds_a_metric(
         }
     }
     reached
+}
+
+/// The objectives a knob works for (pure, see [`KnobDef::feeds`]), as a
+/// function of the node it acts on and, for an adaptor, its edge.
+fn objectives_fed<'a>(
+    stack: &'a RobotStackSpec,
+    spec: &'a PerformanceSpecSpec,
+    graph: &Graph,
+) -> impl Fn(&str, Option<&EdgeId>) -> Vec<String> + 'a {
+    let core_app = |app: &str| stack.app(app).is_none_or(|a| a.core);
+    let reach: Vec<(&str, &str, std::collections::BTreeSet<String>)> = spec
+        .metrics
+        .iter()
+        .filter(|m| !core_app(&m.app))
+        .map(|m| (m.name.as_str(), m.app.as_str(), upstream(graph, m)))
+        .collect();
+    move |node: &str, edge: Option<&EdgeId>| {
+        let claimants: Vec<&str> = edge
+            .map(|e| {
+                stack
+                    .apps
+                    .iter()
+                    .filter(|a| !a.core)
+                    .filter(|a| {
+                        a.inputs
+                            .iter()
+                            .any(|i| i.topic == e.topic && i.node == e.subscriber)
+                    })
+                    .map(|a| a.name.as_str())
+                    .collect()
+            })
+            .unwrap_or_default();
+        reach
+            .iter()
+            .filter(|(_, app, nodes)| {
+                if claimants.is_empty() {
+                    nodes.contains(node)
+                } else {
+                    claimants.contains(app)
+                }
+            })
+            .map(|(name, _, _)| name.to_string())
+            .collect()
+    }
 }
 
 impl KnobSpace {
@@ -433,6 +504,47 @@ impl KnobSpace {
                     k.min + f * (v - k.min)
                 } else {
                     v
+                }
+            })
+            .collect();
+        (self.to_config(&y) != self.to_config(x)).then_some(y)
+    }
+
+    /// The point `x` with the input of every non-core app that works only
+    /// for objectives in surplus cut down to what they count (pure):
+    /// `surplus` gives, per objective, how many times more it measured
+    /// than the level at which more stops counting
+    /// ([`crate::measure::surplus`]). An adaptor knob whose every objective
+    /// ([`KnobDef::feeds`]) has a surplus is scaled so that the one with the
+    /// least keeps [`TRIM_HEADROOM`] times that level (an app's output
+    /// follows its input while its input is what limits it), not below its
+    /// minimum; only cuts to at most [`TRIM_BELOW`] of the value are made.
+    /// Other knobs keep their value: a CPU limit caps what an app takes,
+    /// and an app given less input takes less. `None` when nothing would
+    /// change.
+    pub fn trimmed(&self, x: &[f64], surplus: &BTreeMap<String, f64>) -> Option<Vec<f64>> {
+        if self.knobs.len() != x.len() {
+            return None;
+        }
+        let y: Vec<f64> = self
+            .knobs
+            .iter()
+            .zip(x)
+            .map(|(k, &v)| {
+                let cut = (matches!(k.target, KnobTarget::Adaptor { .. })
+                    && k.restricts_non_core
+                    && !k.feeds.is_empty())
+                .then(|| {
+                    k.feeds
+                        .iter()
+                        .map(|m| surplus.get(m).map(|h| TRIM_HEADROOM / h))
+                        .try_fold(0.0_f64, |a, f| Some(a.max(f?)))
+                })
+                .flatten()
+                .filter(|&f| f <= TRIM_BELOW);
+                match cut {
+                    Some(f) => (v * f).max(k.min).min(v),
+                    None => v,
                 }
             })
             .collect();
@@ -884,6 +996,9 @@ mod tests {
             "it only takes input from people"
         );
         assert_eq!((s.knobs[0].min, s.knobs[0].max), (0.5, 30.0));
+        // It works for the claimant's objective only, though /vision also
+        // publishes the core corners.
+        assert_eq!(s.knobs[0].feeds, vec!["people"]);
         // The loader only exchanges bond heartbeats with the manager: it
         // feeds nothing, so it is pinned at its minimum, and the bond is
         // never adapted.
@@ -902,6 +1017,83 @@ mod tests {
             s.pinned_names(),
             vec!["cpu:/people_loader", "rate:/cam/image_raw>/vision"]
         );
+    }
+
+    #[test]
+    fn each_knob_works_for_the_objectives_downstream_of_its_node() {
+        let all = ["/lidar", "/planner", "/camera", "/detector", "/web"];
+        let s = derive(&stack(), &spec(), &graph(&all), &rates(), 2.0).unwrap();
+        let feeds: Vec<(&str, Vec<&str>)> = s
+            .knobs
+            .iter()
+            .map(|k| {
+                (
+                    k.name.as_str(),
+                    k.feeds.iter().map(String::as_str).collect(),
+                )
+            })
+            .collect();
+        assert_eq!(
+            feeds,
+            vec![
+                ("cpu:/camera", vec!["det"]),
+                ("cpu:/detector", vec!["det"]),
+                ("cpu:/web", vec!["web"]),
+                ("rate:/image>/detector", vec!["det"]),
+                // /web reads the core /scan; the core metric is no objective.
+                ("rate:/scan>/web", vec!["web"]),
+            ]
+        );
+    }
+
+    #[test]
+    fn trimming_cuts_only_inputs_whose_every_objective_is_in_surplus() {
+        let knob = |name: &str, target: KnobTarget, feeds: &[&str]| KnobDef {
+            name: name.into(),
+            target,
+            min: 0.5,
+            max: 30.0,
+            restricts_non_core: true,
+            feeds: feeds.iter().map(|f| f.to_string()).collect(),
+        };
+        let rate = |sub: &str| KnobTarget::Adaptor {
+            topic: "/image".into(),
+            subscriber: sub.into(),
+        };
+        let s = KnobSpace {
+            knobs: vec![
+                knob("rate:/image>/bright", rate("/bright"), &["bright"]),
+                knob("rate:/image>/vision", rate("/vision"), &["people", "flow"]),
+                knob("rate:/image>/both", rate("/both"), &["bright", "people"]),
+                knob(
+                    "cpu:/bright",
+                    KnobTarget::Cpu {
+                        node: "/bright".into(),
+                    },
+                    &["bright"],
+                ),
+                knob("rate:/image>/tiny", rate("/tiny"), &["tiny"]),
+            ],
+            period_micros: 20_000,
+            ..KnobSpace::default()
+        };
+        let surplus: BTreeMap<String, f64> = [("bright", 6.0), ("people", 1.1), ("tiny", 60.0)]
+            .into_iter()
+            .map(|(k, v)| (k.to_string(), v))
+            .collect();
+        let y = s.trimmed(&[30.0, 1.0, 20.0, 1.5, 2.0], &surplus).unwrap();
+        // bright measured 6 times what counts: its input keeps 1.5 of the 6.
+        assert!((y[0] - 7.5).abs() < 1e-9, "{y:?}");
+        // flow has no surplus, so /vision's input stays; /both feeds people,
+        // whose 1.1 would be cut below TRIM_HEADROOM: it stays too.
+        assert_eq!((y[1], y[2]), (1.0, 20.0));
+        // A CPU limit is not trimmed: less input takes less CPU.
+        assert_eq!(y[3], 1.5);
+        // Never below the knob's minimum.
+        assert_eq!(y[4], 0.5);
+        // A cut that keeps more than TRIM_BELOW of the input is not made.
+        let slight: BTreeMap<String, f64> = [("bright".to_string(), 1.7)].into();
+        assert_eq!(s.trimmed(&[30.0, 1.0, 20.0, 1.5, 0.5], &slight), None);
     }
 
     #[test]

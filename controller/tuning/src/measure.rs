@@ -329,6 +329,34 @@ pub fn scalarize(
     })
 }
 
+/// How many times more each at-least objective measured than the level at
+/// which more of it stops counting (pure): its target for
+/// [`Scalarization::Weighted`] (objectives are capped there), the
+/// scalarised level itself for [`Scalarization::MaxMin`] (only the worst
+/// objective counts, so one above it gains nothing until the worst rises).
+/// Only objectives above that level are listed; none when the level is 0.
+/// At-most objectives are left out: less input need not bring them down.
+pub fn surplus(
+    defs: &[MetricDef],
+    means: &BTreeMap<String, f64>,
+    s: Scalarization,
+) -> BTreeMap<String, f64> {
+    let level = match s {
+        Scalarization::Weighted => Some(1.0),
+        Scalarization::MaxMin => scalarize(defs, means, s),
+    };
+    let Some(level) = level.filter(|&l| l > 0.0) else {
+        return BTreeMap::new();
+    };
+    defs.iter()
+        .filter(|d| !d.core && d.at_least && d.target > 0.0)
+        .filter_map(|d| {
+            let h = means.get(&d.name)? / d.target / level;
+            (h > 1.0).then(|| (d.name.clone(), h))
+        })
+        .collect()
+}
+
 /// Everything the loop derives from one measurement.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct Evaluation {
@@ -540,5 +568,36 @@ mod tests {
         assert_eq!(c.duration_ms, 4000);
         assert_eq!(c.series[0].values, vec![20.0, 25.0, 20.0, 30.0]);
         assert_eq!(c.series[0].mean, 23.75);
+    }
+
+    #[test]
+    fn surplus_is_measured_against_the_level_at_which_more_stops_counting() {
+        let defs = vec![
+            def("core", true, true, 25.0),
+            def("people", false, true, 3.0),
+            def("bright", false, true, 15.0),
+            def("latency", false, false, 0.1),
+        ];
+        let means: BTreeMap<String, f64> = [
+            ("core", 28.0),
+            ("people", 1.0),
+            ("bright", 20.0),
+            ("latency", 0.05),
+        ]
+        .into_iter()
+        .map(|(k, v)| (k.to_string(), v))
+        .collect();
+        // Max-min: the level is people's 1/3; bright measured 4 times that.
+        let s = surplus(&defs, &means, Scalarization::MaxMin);
+        assert_eq!(s.keys().collect::<Vec<_>>(), vec!["bright"]);
+        assert!((s["bright"] - 4.0).abs() < 1e-9);
+        // Weighted: each counts up to its target, so only bright's cap is passed.
+        let s = surplus(&defs, &means, Scalarization::Weighted);
+        assert!((s["bright"] - 20.0 / 15.0).abs() < 1e-9);
+        assert_eq!(s.len(), 1);
+        // At level 0 nothing is known to be in surplus.
+        let mut none = means.clone();
+        none.insert("people".into(), 0.0);
+        assert!(surplus(&defs, &none, Scalarization::MaxMin).is_empty());
     }
 }

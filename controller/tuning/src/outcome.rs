@@ -245,13 +245,16 @@ fn back_off(
             ),
         ));
         run.deferred_backoff = Some(backoff);
-        let verify = State::VerifyApply {
-            candidate: Candidate::Trial { index: alt },
-            config: run.knobs.weigh(run.trials[alt].config.clone()),
-        };
+        let verify = verify_trial(run, env, defs, alt, out);
         return drain_first(run, env, verify);
     }
-    let (y, shaped) = backoff_point(run, pick, uniform);
+    let (mut y, shaped) = backoff_point(run, pick, uniform);
+    if let Some((trim, _)) = trimmed_trial(run, env, defs, pick) {
+        // What the trial's verification cut stays cut in its back-offs.
+        for (v, t) in y.iter_mut().zip(trim) {
+            *v = v.min(t);
+        }
+    }
     let how = match &shaped {
         None => format!("at {:.0} % of the way from their minimum", next * 100.0),
         Some(parts) => format!(
@@ -631,11 +634,82 @@ pub fn after_tip(
     ));
     run.tipped = Some(violation.clone());
     run.tip_retried = true;
-    let verify = State::VerifyApply {
-        candidate: Candidate::Trial { index: next },
-        config: run.knobs.weigh(run.trials[next].config.clone()),
-    };
+    let defs = measure::metric_defs(&env.stack.spec, env.spec);
+    let verify = verify_trial(run, env, &defs, next, out);
     Some(drain_first(run, env, verify))
+}
+
+/// Trial `index`'s point with its surplus trimmed ([`KnobSpace::trimmed`]
+/// on [`measure::surplus`] of the trial's means), and the event text that
+/// says what was cut; `None` when nothing is. Measured on real-nodelets
+/// (2026-11-26): the run's objective was the vision manager's input (about
+/// 1 Hz against 3), and the brightness transform, its own process, was
+/// verified at 27 Hz of input against the 5 Hz that objective level needs
+/// of it (the scalarisation is max-min); its CPU took the core tracker's
+/// margin and the config missed 3 windows of the next minute.
+pub fn trimmed_trial(
+    run: &Run,
+    env: &Env<'_>,
+    defs: &[MetricDef],
+    index: usize,
+) -> Option<(Vec<f64>, String)> {
+    let t = run.trials.get(index)?;
+    let s = env.spec.tuning.scalarization;
+    let surplus = measure::surplus(defs, &t.eval.means, s);
+    let y = run.knobs.trimmed(&t.x, &surplus)?;
+    let cuts: Vec<String> = run
+        .knobs
+        .knobs
+        .iter()
+        .zip(t.x.iter().zip(&y))
+        .filter(|(_, (a, b))| b < a)
+        .map(|(k, (a, b))| {
+            let most = k
+                .feeds
+                .iter()
+                .filter_map(|m| surplus.get(m).map(|h| format!("{m} {h:.1}x")))
+                .collect::<Vec<_>>()
+                .join(", ");
+            format!("{} {a:.2} -> {b:.2} ({most})", k.name)
+        })
+        .collect();
+    let level = match s {
+        configbot_manifests::performance_spec::Scalarization::MaxMin => format!(
+            "the level of the worst objective ({:.3})",
+            t.eval.objective.unwrap_or(0.0)
+        ),
+        configbot_manifests::performance_spec::Scalarization::Weighted => "their targets".into(),
+    };
+    Some((
+        y,
+        format!(
+            "verifying trial {index} with the input of apps whose objectives measured more than counts cut to {} times {level}: {}; the CPU they took is margin for the core services",
+            super::knobs::TRIM_HEADROOM,
+            cuts.join(", ")
+        ),
+    ))
+}
+
+/// The verification of trial `index`: its config with the surplus trimmed
+/// ([`trimmed_trial`], with an event) and the core weights of the run.
+pub fn verify_trial(
+    run: &Run,
+    env: &Env<'_>,
+    defs: &[MetricDef],
+    index: usize,
+    out: &mut Vec<Output>,
+) -> State {
+    let config = match trimmed_trial(run, env, defs, index) {
+        Some((y, text)) => {
+            out.push(normal(Reason::TrimmingSurplus, text));
+            run.knobs.to_config(&y)
+        }
+        None => run.trials[index].config.clone(),
+    };
+    State::VerifyApply {
+        candidate: Candidate::Trial { index },
+        config: run.knobs.weigh(config),
+    }
 }
 
 /// Whether a measurement missed core targets in bursts rather than on
@@ -848,7 +922,11 @@ pub fn verified(
                 && let Some(t) = run.trials.get(index)
             {
                 run.failed_verifications.push(TrialRecord {
-                    x: t.x.clone(),
+                    x: if config == t.config {
+                        t.x.clone()
+                    } else {
+                        run.knobs.from_config(&config)
+                    },
                     config: config.clone(),
                     eval: as_failed(defs, eval.clone()),
                     censored: false,

@@ -505,8 +505,7 @@ pub(crate) fn finish(
     defs: &[MetricDef],
     out: &mut Vec<Output>,
 ) -> State {
-    let best = best_trial(run).map(|i| (i, run.trials[i].config.clone()));
-    if let Some((index, config)) = best {
+    if let Some(index) = best_trial(run) {
         let clear = best_clear_trial(run);
         if !run.edges.is_empty() && clear != Some(index) {
             let objective = |i: usize| run.trials[i].eval.objective.unwrap_or(0.0);
@@ -525,10 +524,7 @@ pub(crate) fn finish(
                 ),
             ));
         }
-        let verify = State::VerifyApply {
-            candidate: Candidate::Trial { index },
-            config: run.knobs.weigh(config),
-        };
+        let verify = outcome::verify_trial(run, env, defs, index, out);
         return drain_first(run, env, verify);
     }
     // No trial's bound held, but the most restrictive config was near the

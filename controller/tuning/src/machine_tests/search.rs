@@ -89,6 +89,7 @@ fn with_two_trials(env: &Env<'_>) -> Run {
         min: 0.1,
         max: 2.0,
         restricts_non_core,
+        feeds: Vec::new(),
     };
     let mut run = with(State::Observe {
         trigger: Trigger::SpecChanged,
@@ -449,6 +450,7 @@ fn with_an_adaptive_settle_configs_are_applied_after_a_drain_of_the_non_core_app
         min: 0.5,
         max: 30.0,
         restricts_non_core: true,
+        feeds: Vec::new(),
     });
     for t in &mut run.trials {
         t.x.push(5.0);
@@ -544,6 +546,7 @@ fn safe_exploration_is_off_when_no_config_can_be_worse_than_the_baseline() {
         min: 0.1,
         max: 2.0,
         restricts_non_core,
+        feeds: Vec::new(),
     };
     let space = |ks: Vec<knobs::KnobDef>| KnobSpace {
         knobs: ks,
@@ -1299,4 +1302,47 @@ fn a_shaped_back_off_is_verified_and_never_gives_as_much_as_a_failure() {
     };
     assert!(*satisfied, "{:?}", run.reason);
     assert!(verification(config).0 >= 35.0, "{config:?}");
+}
+
+#[test]
+fn a_trial_whose_objective_measured_beyond_what_counts_is_verified_with_that_input_trimmed() {
+    let (st, sp) = (stack(), spec(1.0, 5));
+    let env = env(&st, &sp);
+    let mut run = with_two_trials(&env);
+    run.knobs.knobs.push(knobs::KnobDef {
+        name: knobs::adaptor_knob_name("/image", "/detector"),
+        target: knobs::KnobTarget::Adaptor {
+            topic: "/image".into(),
+            subscriber: "/detector".into(),
+        },
+        min: 0.5,
+        max: 30.0,
+        restricts_non_core: true,
+        feeds: vec!["det".into()],
+    });
+    run.trials.clear();
+    // `det` targets 10: at 30 Hz of input it measured 30, three times its cap.
+    push_trial(&mut run, &env, &[1.9, 1.5, 30.0], 30.0);
+    let mut out = Vec::new();
+    run.state = finish(&mut run, &env, &env.defs(), &mut out);
+    assert_eq!(reasons(&out), vec!["TrimmingSurplus"]);
+    assert!(
+        event_text(&out[0]).contains("rate:/image>/detector 30.00 -> 15.00 (det 3.0x)"),
+        "{out:?}"
+    );
+    // Its input keeps 1.5 times the cap; the CPU knobs stay as measured.
+    assert_eq!(
+        run.state,
+        State::VerifyApply {
+            candidate: Candidate::Trial { index: 0 },
+            config: run.knobs.to_config(&[1.9, 1.5, 15.0])
+        }
+    );
+    // Below 1.5 / 0.8 times its cap, the trial is verified as measured.
+    run.trials.clear();
+    push_trial(&mut run, &env, &[1.9, 1.5, 30.0], 18.0);
+    let mut out = Vec::new();
+    run.state = finish(&mut run, &env, &env.defs(), &mut out);
+    assert!(out.is_empty(), "{out:?}");
+    assert_verifies_trial_as_measured(&run, 0);
 }
