@@ -220,11 +220,15 @@ fn back_off(
         fraction: next,
         ..
     } = backoff;
-    let Some(uniform) = run
-        .trials
-        .get(pick)
-        .and_then(|t| run.knobs.backed_off(&t.x, next))
+    // A back-off backs off what the trial's verification measured: its
+    // point with the surplus trimmed, when that was cut.
+    let Some(base) = trimmed_trial(run, env, defs, pick)
+        .map(|(y, _)| y)
+        .or_else(|| run.trials.get(pick).map(|t| t.x.clone()))
     else {
+        return finish(run, env, defs, out);
+    };
+    let Some(uniform) = run.knobs.backed_off(&base, next) else {
         return finish(run, env, defs, out);
     };
     let objective = |t: &TrialRecord| t.eval.objective.unwrap_or(0.0);
@@ -248,13 +252,7 @@ fn back_off(
         let verify = verify_trial(run, env, defs, alt, out);
         return drain_first(run, env, verify);
     }
-    let (mut y, shaped) = backoff_point(run, pick, uniform);
-    if let Some((trim, _)) = trimmed_trial(run, env, defs, pick) {
-        // What the trial's verification cut stays cut in its back-offs.
-        for (v, t) in y.iter_mut().zip(trim) {
-            *v = v.min(t);
-        }
-    }
+    let (y, shaped) = backoff_point(run, &base, uniform);
     let how = match &shaped {
         None => format!("at {:.0} % of the way from their minimum", next * 100.0),
         Some(parts) => format!(
@@ -282,8 +280,10 @@ fn back_off(
 /// [`KnobSpace::backoff_shapes`]).
 const SHAPES: usize = 4096;
 
-/// The point to verify when trial `pick` backs off to `uniform` (every
-/// non-core knob at the same fraction `f`), and, when it is another point,
+/// The point to verify when `x`, the point a rejected trial was verified at
+/// (its own, its surplus trimmed: [`trimmed_trial`]), backs off to
+/// `uniform` (every non-core knob at the same fraction `f` of `x`), and,
+/// when it is another point,
 /// how far each knob that moves was taken. The uniform
 /// back-off ([`KnobSpace::backed_off`]) moves every non-core knob by `f`,
 /// so it gives up as much of a knob that does not threaten the core as of
@@ -305,13 +305,12 @@ const SHAPES: usize = 4096;
 /// shaped back-off chose the failed trial itself.
 /// The uniform back-off stays the fallback: without models, without a
 /// complete trial to predict objective from, or when no shape qualifies.
-fn backoff_point(run: &Run, pick: usize, uniform: Vec<f64>) -> (Vec<f64>, Option<String>) {
-    let (Some(trial), Some(opt)) = (run.trials.get(pick), run.optimizer.as_ref()) else {
+fn backoff_point(run: &Run, x: &[f64], uniform: Vec<f64>) -> (Vec<f64>, Option<String>) {
+    let Some(opt) = run.optimizer.as_ref() else {
         return (uniform, None);
     };
-    let x = &trial.x;
-    let failed: Vec<&Vec<f64>> = std::iter::once(x)
-        .chain(run.failed_verifications.iter().map(|v| &v.x))
+    let failed: Vec<&[f64]> = std::iter::once(x)
+        .chain(run.failed_verifications.iter().map(|v| v.x.as_slice()))
         .collect();
     let shapes = run
         .knobs

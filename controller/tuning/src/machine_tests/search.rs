@@ -1338,6 +1338,14 @@ fn a_trial_whose_objective_measured_beyond_what_counts_is_verified_with_that_inp
             config: run.knobs.to_config(&[1.9, 1.5, 15.0])
         }
     );
+    // When that fails, the back-off backs off the trimmed point, not the
+    // trial's 30 Hz: 80 % of the way from the minimum to 15 Hz.
+    let (failed, out) = verify(run.clone(), &env, &[20.0; 10]);
+    assert_eq!(reasons(&out), vec!["VerificationFailed", "BackingOff"]);
+    let State::VerifyApply { config, .. } = &failed.state else {
+        panic!("{:?}", failed.state)
+    };
+    assert_eq!(config.adaptors[0].rate_hz, 12.1, "{config:?}");
     // Below 1.5 / 0.8 times its cap, the trial is verified as measured.
     run.trials.clear();
     push_trial(&mut run, &env, &[1.9, 1.5, 30.0], 18.0);
