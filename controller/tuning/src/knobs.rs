@@ -490,23 +490,24 @@ impl KnobSpace {
     /// (see [`KnobDef::restricts_non_core`]), so this is `x` with a margin from
     /// the core constraints' edge. `None` when nothing would change.
     pub fn backed_off(&self, x: &[f64], fraction: f64) -> Option<Vec<f64>> {
+        let f = fraction.clamp(0.0, 1.0);
+        self.moved(x, |k, v| {
+            if k.restricts_non_core {
+                let v = v.clamp(k.min, k.max);
+                k.min + f * (v - k.min)
+            } else {
+                v
+            }
+        })
+    }
+
+    /// `x` with each knob's value mapped by `f` (pure); `None` when `x` is
+    /// not a point of this space or the config would not change.
+    fn moved(&self, x: &[f64], f: impl Fn(&KnobDef, f64) -> f64) -> Option<Vec<f64>> {
         if self.knobs.len() != x.len() {
             return None;
         }
-        let f = fraction.clamp(0.0, 1.0);
-        let y: Vec<f64> = self
-            .knobs
-            .iter()
-            .zip(x)
-            .map(|(k, &v)| {
-                if k.restricts_non_core {
-                    let v = v.clamp(k.min, k.max);
-                    k.min + f * (v - k.min)
-                } else {
-                    v
-                }
-            })
-            .collect();
+        let y: Vec<f64> = self.knobs.iter().zip(x).map(|(k, &v)| f(k, v)).collect();
         (self.to_config(&y) != self.to_config(x)).then_some(y)
     }
 
@@ -523,32 +524,23 @@ impl KnobSpace {
     /// and an app given less input takes less. `None` when nothing would
     /// change.
     pub fn trimmed(&self, x: &[f64], surplus: &BTreeMap<String, f64>) -> Option<Vec<f64>> {
-        if self.knobs.len() != x.len() {
-            return None;
-        }
-        let y: Vec<f64> = self
-            .knobs
-            .iter()
-            .zip(x)
-            .map(|(k, &v)| {
-                let cut = (matches!(k.target, KnobTarget::Adaptor { .. })
-                    && k.restricts_non_core
-                    && !k.feeds.is_empty())
-                .then(|| {
-                    k.feeds
-                        .iter()
-                        .map(|m| surplus.get(m).map(|h| TRIM_HEADROOM / h))
-                        .try_fold(0.0_f64, |a, f| Some(a.max(f?)))
-                })
-                .flatten()
-                .filter(|&f| f <= TRIM_BELOW);
-                match cut {
-                    Some(f) => (v * f).max(k.min).min(v),
-                    None => v,
-                }
+        self.moved(x, |k, v| {
+            let cut = (matches!(k.target, KnobTarget::Adaptor { .. })
+                && k.restricts_non_core
+                && !k.feeds.is_empty())
+            .then(|| {
+                k.feeds
+                    .iter()
+                    .map(|m| surplus.get(m).map(|h| TRIM_HEADROOM / h))
+                    .try_fold(0.0_f64, |a, f| Some(a.max(f?)))
             })
-            .collect();
-        (self.to_config(&y) != self.to_config(x)).then_some(y)
+            .flatten()
+            .filter(|&f| f <= TRIM_BELOW);
+            match cut {
+                Some(f) => (v * f).max(k.min).min(v),
+                None => v,
+            }
+        })
     }
 
     /// Back-offs of `x` with a fraction of its own for each knob that only
@@ -654,16 +646,7 @@ impl KnobSpace {
     /// the configs a run can try it leaves the core services the most; `None`
     /// when no knob restricts a non-core app or `x` is that point already.
     pub fn restrictive_corner(&self, x: &[f64]) -> Option<Vec<f64>> {
-        if self.knobs.len() != x.len() {
-            return None;
-        }
-        let y: Vec<f64> = self
-            .knobs
-            .iter()
-            .zip(x)
-            .map(|(k, &v)| if k.restricts_non_core { k.min } else { v })
-            .collect();
-        (self.to_config(&y) != self.to_config(x)).then_some(y)
+        self.moved(x, |k, v| if k.restricts_non_core { k.min } else { v })
     }
 
     /// How much the point `x` gives the non-core apps: the mean position of
