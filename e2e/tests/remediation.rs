@@ -18,6 +18,22 @@ fn state(pid: u32) -> Option<char> {
     s.rsplit_once(')')?.1.trim_start().chars().next()
 }
 
+/// Whether rosbag's recorder (node `/record_…`) subscribes to `/scan`, by
+/// the robot's master (`rostopic info`).
+fn recorder_on_scan(robot: &Robot) -> bool {
+    std::process::Command::new("/usr/bin/rostopic")
+        .args(["info", "/scan"])
+        .env("ROS_MASTER_URI", robot.master_uri())
+        .env("ROS_HOSTNAME", "localhost")
+        .env("ROS_HOME", robot.dir.path())
+        .output()
+        .is_ok_and(|o| {
+            let text = String::from_utf8_lossy(&o.stdout);
+            text.split_once("Subscribers:")
+                .is_some_and(|(_, subs)| subs.contains(" * /record_"))
+        })
+}
+
 /// Waits until no hog has a process in its cgroup; panics with the events
 /// about spec `name` after `timeout`.
 fn hogs_gone(robot: &Robot, name: &str, timeout: Duration) {
@@ -167,6 +183,16 @@ fn a_frozen_remediation_records_the_inputs_and_thaws_when_the_annotation_allows_
     robot.wait_for("pspec", name, Duration::from_secs(10), "Remediating", |o| {
         phase(o) == Phase::Remediating
     });
+    // rosbag's wrapper starts its recorder, which subscribes and opens
+    // `<bag>.active` (seconds on a busy machine): only then can the bag hold
+    // messages. Stopped sooner, it writes none (CI, 2026-11-26).
+    let recording = try_wait_until(
+        "rosbag to subscribe to /scan and open its bag",
+        Duration::from_secs(30),
+        Duration::from_millis(200),
+        || std::path::Path::new(&format!("{bag}.active")).is_file() && recorder_on_scan(&robot),
+    );
+    recording.unwrap_or_else(|e| panic!("{e}\n{}", robot.event_log(name)));
 
     // The task executive allows tuning again.
     robot.apply(spec);

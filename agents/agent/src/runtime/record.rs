@@ -142,10 +142,12 @@ impl Recordings {
         Ok(Some((path, true)))
     }
 
-    /// Stops recording `name`; the bag's path, or `None` if none was running.
+    /// Stops recording `name`; the bag's path, or `None` if none was
+    /// running or it wrote no bag (stopped before rosbag had opened it: a
+    /// recorder starts in a second or two, longer on a busy machine).
     pub async fn stop(&self, name: &str) -> Option<PathBuf> {
         let a = self.active.lock().await.remove(name)?;
-        Some(finish(a).await)
+        finish(a).await
     }
 
     /// Stops (SIGINT, so their bags close) the `rosbag record` processes
@@ -193,7 +195,9 @@ fn is_recorder_in(cmdline: &str, dir: &Path) -> bool {
         && cmdline.contains(&format!(" -O {}/", dir.display()))
 }
 
-async fn finish(mut a: Active) -> PathBuf {
+/// Stops a recording and waits for its processes: the bag, if rosbag wrote
+/// one.
+async fn finish(mut a: Active) -> Option<PathBuf> {
     let proc_root = Path::new("/proc");
     let group = a.child.id();
     // The `rosbag` wrapper (python) runs the recorder as its child and can
@@ -225,7 +229,12 @@ async fn finish(mut a: Active) -> PathBuf {
         }
         let _ = a.child.wait().await;
     }
-    a.path
+    if a.path.is_file() {
+        Some(a.path)
+    } else {
+        tracing::warn!(bag = %a.path.display(), "rosbag stopped before it wrote its bag");
+        None
+    }
 }
 
 /// Every process descending from `pid`, from `proc_root`.
