@@ -731,9 +731,10 @@ pub fn bursts(defs: &[MetricDef], eval: &measure::Evaluation) -> bool {
             .all(|d| eval.means.get(&d.name).is_some_and(|&m| d.holds(m)))
 }
 
-/// Weights the run's core nodes when `eval`, a complete measurement of
-/// `what` (a trial, or a verification's candidate), missed in bursts
-/// ([`bursts`]) and the run is not weighted yet: from now on every config
+/// Marks the run bursty (`Run::bursty`: its verifications must hold a
+/// longer record) and weights the run's core nodes when `eval`, a complete
+/// measurement of `what` (a trial, or a verification's candidate), missed
+/// in bursts ([`bursts`]) and the run is not weighted yet: from now on every config
 /// of the run gives them [`super::knobs::CORE_WEIGHT`]
 /// ([`KnobSpace::weighted`]). Returns whether it did. The trials measured
 /// before stay as measured (a weight only helps the core nodes, so a trial
@@ -749,7 +750,11 @@ pub fn weigh_on_bursts(
     then: &str,
     out: &mut Vec<Output>,
 ) -> bool {
-    if run.knobs.weighted || run.knobs.core.is_empty() || !bursts(defs, eval) {
+    if !bursts(defs, eval) {
+        return false;
+    }
+    run.bursty = true;
+    if run.knobs.weighted || run.knobs.core.is_empty() {
         return false;
     }
     run.knobs.weighted = true;
@@ -793,11 +798,17 @@ fn verify_weighted(
     drain_first(run, env, State::VerifyApply { candidate, config })
 }
 
-/// Why a verification failed, for its event: too few windows held, or they
+/// Why a verification failed, for its event: too few windows held (by the
+/// rule [`holds`] judged it by: `minute` when it was measured on), or they
 /// held but their spread predicts misses (the bound of [`measure::robust_value`]).
-pub fn shortfall(defs: &[MetricDef], eval: &measure::Evaluation) -> String {
+pub fn shortfall(defs: &[MetricDef], eval: &measure::Evaluation, minute: bool) -> String {
     let held = format!("{:.1} % of the windows", eval.satisfaction * 100.0);
-    if eval.satisfaction < SATISFIED {
+    let enough = if minute {
+        measure::BAR_SATISFACTION
+    } else {
+        SATISFIED
+    };
+    if eval.satisfaction < enough {
         return format!("held in only {held}");
     }
     let core = defs.iter().filter(|d| d.core);
@@ -904,7 +915,7 @@ pub fn verified(
                 Reason::VerificationFailed,
                 format!(
                     "trial {index} {}{}",
-                    shortfall(defs, &eval),
+                    shortfall(defs, &eval, minute),
                     if edges.is_empty() {
                         String::new()
                     } else {
@@ -949,7 +960,12 @@ pub fn verified(
             });
             out.push(warning(
                 Reason::VerificationFailed,
-                format!("trial {} {} {}", b.index, b.text(), shortfall(defs, &eval)),
+                format!(
+                    "trial {} {} {}",
+                    b.index,
+                    b.text(),
+                    shortfall(defs, &eval, minute)
+                ),
             ));
             back_off(
                 run,

@@ -208,7 +208,7 @@ fn a_verification_short_of_the_bar_is_measured_on_to_the_minute() {
     let Effect::Measure(req) = effect(&on, &env) else {
         panic!("{:?}", on.state)
     };
-    assert_eq!(req.duration_ms, 50_000, "the rest of the minute");
+    assert_eq!(req.duration_ms, 30_000, "the minute's next piece");
 
     let rest = close.repeat(5);
     let (held, out) = step(on.clone(), report(&rest, 9.0), &env);
@@ -231,6 +231,63 @@ fn a_verification_short_of_the_bar_is_measured_on_to_the_minute() {
         "{out:?}"
     );
     assert_eq!(name(&failed.state), "VerifyApply");
+}
+
+/// In a run whose core windows missed while their means held
+/// (`Run::bursty`), a verification that holds its first measurement is
+/// measured on to [`measure::RECORD_WINDOWS`] windows whatever its margin,
+/// in pieces of 30 s, and judged at the first piece that misses a window.
+/// The same run, not bursty, holds at once on the same windows.
+#[test]
+fn a_bursty_run_verifies_a_config_over_two_clean_minutes_stopping_at_the_first_miss() {
+    let (st, sp) = (stack(), spec(1.0, 5));
+    let env = env(&st, &sp);
+    let mut run = with_two_trials(&env);
+    let mut out = Vec::new();
+    run.state = finish(&mut run, &env, &env.defs(), &mut out);
+    let steady = [40.0; 10];
+    let (held, out) = verify(run.clone(), &env, &steady);
+    assert_eq!(reasons(&out), vec!["Satisfied", "<save>"], "not bursty");
+    assert_eq!(name(&held.state), "Monitor");
+
+    run.bursty = true;
+    let (mut on, out) = verify(run, &env, &steady);
+    assert_eq!(reasons(&out), vec!["NearBoundary"]);
+    assert!(
+        event_text(&out[0]).contains(
+            "trial 1 held over 10 s, this run's core windows miss in bursts while their means hold, so a config must hold 120 windows in a row; measuring on to 120 s, stopping at the first miss"
+        ),
+        "{out:?}"
+    );
+    for left in [110_000, 80_000, 50_000] {
+        let Effect::Measure(req) = effect(&on, &env) else {
+            panic!("{:?}", on.state)
+        };
+        assert_eq!(req.duration_ms, left.min(30_000), "{left} ms left");
+        let (next, out) = step(on, report(&[40.0; 30], 9.0), &env);
+        assert!(out.is_empty(), "{out:?}");
+        assert_eq!(name(&next.state), "Verify");
+        on = next;
+    }
+    let Effect::Measure(req) = effect(&on, &env) else {
+        panic!("{:?}", on.state)
+    };
+    assert_eq!(req.duration_ms, 20_000, "the last piece");
+    let (held, out) = step(on.clone(), report(&[40.0; 20], 9.0), &env);
+    assert_eq!(reasons(&out), vec!["Satisfied", "<save>"]);
+    let record = held.verified.as_ref().expect("verified");
+    assert_eq!(record.satisfaction, 1.0);
+    assert_eq!(name(&held.state), "Monitor");
+
+    let mut one_miss = [40.0; 20];
+    one_miss[7] = 30.0;
+    let (failed, out) = step(on, report(&one_miss, 9.0), &env);
+    assert_eq!(reasons(&out)[0], "VerificationFailed", "{out:?}");
+    assert!(
+        event_text(&out[0]).contains("trial 1 held in only 99.2 % of the windows"),
+        "{out:?}"
+    );
+    assert_eq!(failed.rejected, vec![1]);
 }
 
 /// A verification that misses windows while every core mean holds (the
@@ -259,6 +316,10 @@ fn a_verification_that_misses_in_bursts_weights_the_core_nodes_and_verifies_agai
         "{out:?}"
     );
     assert!(weighted.knobs.weighted);
+    assert!(
+        weighted.bursty,
+        "its verifications hold a longer record from now on"
+    );
     assert!(weighted.rejected.is_empty() && weighted.failed_verifications.is_empty());
     let State::VerifyApply {
         candidate: Candidate::Trial { index: 1 },
@@ -284,6 +345,7 @@ fn a_verification_that_misses_in_bursts_weights_the_core_nodes_and_verifies_agai
     let (unweighted, out) = verify(run, &env, &BAD);
     assert_eq!(reasons(&out), vec!["VerificationFailed", "BackingOff"]);
     assert!(!unweighted.knobs.weighted);
+    assert!(!unweighted.bursty);
     let State::VerifyApply { config, .. } = &unweighted.state else {
         panic!("{:?}", unweighted.state)
     };
