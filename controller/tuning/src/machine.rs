@@ -710,8 +710,7 @@ pub fn effect(run: &Run, env: &Env<'_>) -> Effect {
         } => probe(
             env.record_ms(run)
                 .saturating_sub(p.duration_ms)
-                .min(RECORD_CHUNK_MS)
-                .max(1000),
+                .clamp(1000, RECORD_CHUNK_MS),
         ),
         State::Monitor { .. } | State::Remediating { .. } => probe(env.monitor_ms()),
         State::RemediatePause { remedy } => Effect::PauseApps(remedy.clone()),
