@@ -263,6 +263,14 @@ pub struct Tuning {
     /// nodes never came up.
     #[serde(default = "default_startup_timeout")]
     pub startup_timeout_seconds: f64,
+    /// In a run whose core windows miss in bursts (a window missed while
+    /// every core mean held its target), how long a config must hold, no
+    /// window missed, before it is accepted, in seconds. The default is
+    /// two of the minutes a config is judged by: there a window's dip does
+    /// not scale with the spread of its neighbours, so no margin predicts
+    /// a clean minute, and only a clean record tells.
+    #[serde(default = "default_record_seconds")]
+    pub record_seconds: f64,
 }
 
 impl Default for Tuning {
@@ -276,6 +284,7 @@ impl Default for Tuning {
             safety_floor: None,
             scalarization: Scalarization::MaxMin,
             startup_timeout_seconds: default_startup_timeout(),
+            record_seconds: default_record_seconds(),
         }
     }
 }
@@ -454,6 +463,11 @@ fn default_min_adaptor_rate() -> f64 {
 
 fn default_startup_timeout() -> f64 {
     60.0
+}
+
+/// `spec.tuning.recordSeconds` when the spec does not say.
+pub fn default_record_seconds() -> f64 {
+    120.0
 }
 
 fn default_trial_seconds() -> f64 {

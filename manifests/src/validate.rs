@@ -418,6 +418,9 @@ fn performance_spec(e: &mut Errors, p: &PerformanceSpec) {
     {
         e.add("spec.tuning.safetyFloor", format!("{f} is outside (0, 1]"));
     }
+    if !(t.record_seconds.is_finite() && t.record_seconds >= 1.0) {
+        e.add("spec.tuning.recordSeconds", "must be 1 or more");
+    }
     e.positive(
         "spec.monitoring.graphIntervalSeconds",
         spec.monitoring.graph_interval_seconds,

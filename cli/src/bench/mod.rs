@@ -99,10 +99,11 @@ pub struct BenchArgs {
     #[arg(long, default_value_t = 20)]
     hold_secs: u64,
     /// For CI: Basic-NAV only, 5 s windows, one random config, at most 6
-    /// trials of at most 3 s (settling at most 1 s); Basic-NAV's config cross-evaluated on
+    /// trials of at most 3 s (settling at most 1 s, a bursty run's record at
+    /// most 10 s); Basic-NAV's config cross-evaluated on
     /// Terrain-NAV only; a short timeline (switch at 15 s, at most 4 trials
     /// per run). With real stacks in `--stacks`: those only, 5 s windows,
-    /// one seed, at most 4 trials, an oracle of 3 configs. Checks the shape
+    /// one seed, at most 4 trials (a record of at most 10 s), an oracle of 3 configs. Checks the shape
     /// of the output, not the numbers.
     #[arg(long)]
     quick: bool,
@@ -286,6 +287,7 @@ fn example_for(name: &str, p: &Plan) -> anyhow::Result<(RobotStack, PerformanceS
         spec.spec.tuning.max_trials = spec.spec.tuning.max_trials.min(m);
         spec.spec.tuning.trial_seconds = spec.spec.tuning.trial_seconds.min(3.0);
         spec.spec.tuning.settle_seconds = spec.spec.tuning.settle_seconds.min(1.0);
+        spec.spec.tuning.record_seconds = spec.spec.tuning.record_seconds.min(10.0);
     }
     Ok((stack, spec))
 }

@@ -89,6 +89,7 @@ pub async fn run_stack(
     let (stack, mut spec) = example(name)?;
     if let Some(m) = p.max_trials {
         spec.spec.tuning.max_trials = spec.spec.tuning.max_trials.min(m);
+        spec.spec.tuning.record_seconds = spec.spec.tuning.record_seconds.min(10.0);
     }
     let defs = measure::metric_defs(&stack.spec, &spec.spec);
     let mut rows = Vec::new();
@@ -349,15 +350,12 @@ async fn oracle(
             let mut config = configs[i].config.clone();
             let mut weighted = false;
             loop {
+                let row_of = |rep: &configbot_api::measure::MeasureReport| -> anyhow::Result<MethodResult> {
+                    let config = serde_json::to_value(&config)?;
+                    Ok(result(name, "oracle", defs, rep, config, None))
+                };
                 let rep = measure_from_drained(r, &space, defs, &config, p.window).await?;
-                let row = result(
-                    name,
-                    "oracle",
-                    defs,
-                    &rep,
-                    serde_json::to_value(&config)?,
-                    None,
-                );
+                let row = row_of(&rep)?;
                 let mut v = OracleVerification {
                     config: i,
                     weighted,
@@ -367,14 +365,7 @@ async fn oracle(
                 let mut last = rep;
                 if row.satisfaction >= ORACLE_HOLDS {
                     let rep = measure_defs(r, defs, p.window).await?;
-                    let then = result(
-                        name,
-                        "oracle",
-                        defs,
-                        &rep,
-                        serde_json::to_value(&config)?,
-                        None,
-                    );
+                    let then = row_of(&rep)?;
                     println!(
                         "    config {:>2} held {:.1} %; the minute after: {:.1} %",
                         i + 1,

@@ -55,15 +55,6 @@ pub const NEAR_SHARE: f64 = 0.8;
 pub const BAR_WINDOWS: usize = 60;
 /// The share of that minute's windows that must hold: none of 60 may miss.
 pub const BAR_SATISFACTION: f64 = 0.995;
-/// The windows in a row a verification must hold, none missed, in a run
-/// whose core rate dips in bursts (`Run::bursty`): two of the bar's
-/// minutes, the record the bench's oracle holds its best config to. A
-/// window's dip there does not scale with the spread of the windows
-/// around it, so no margin in sd predicts a minute without a miss.
-/// Measured on the real stacks (2026-11-26): five of six seeds that
-/// failed the bar held their verification (30 windows, or the minute)
-/// and then missed 1–3 of the next 60.
-pub const RECORD_WINDOWS: usize = 2 * BAR_WINDOWS;
 /// The margin, in sd of the windows, at which a normal config misses none of
 /// [`BAR_WINDOWS`] windows nine times in ten: a miss per window of at most
 /// 1 − 0.9^(1/60) = 0.18 %, the one-sided quantile 2.92. A config with less

@@ -735,11 +735,43 @@ impl Robot {
             || nodes.iter().all(|n| !node_pids(&self.root, n).is_empty()),
         );
         up.unwrap_or_else(|e| panic!("{e}\n{}", self.server_log()));
+        let registered = try_wait_until(
+            &format!("nodes {nodes:?} to register with the master"),
+            Duration::from_secs(30),
+            Duration::from_millis(100),
+            || nodes.iter().all(|n| self.registered(n)),
+        );
+        registered.unwrap_or_else(|e| panic!("{e}\n{}", self.server_log()));
         if started.elapsed() > Duration::from_secs(10) {
             eprintln!("e2e: slow node start: {:?}", started.elapsed());
         }
-        // Each simnode registers with the master right after it starts.
-        std::thread::sleep(Duration::from_millis(1500));
+    }
+
+    /// Whether `node` is registered with the robot's ROS master: its
+    /// `lookupNode` (ROS Master API, XML-RPC over HTTP) answers with code 1.
+    pub fn registered(&self, node: &str) -> bool {
+        use std::io::{Read, Write};
+        let body = format!(
+            "<?xml version=\"1.0\"?><methodCall><methodName>lookupNode</methodName><params>\
+             <param><value><string>/e2e</string></value></param>\
+             <param><value><string>{node}</string></value></param></params></methodCall>"
+        );
+        let request = format!(
+            "POST / HTTP/1.1\r\nHost: localhost\r\nContent-Type: text/xml\r\nContent-Length: {}\r\nConnection: close\r\n\r\n{body}",
+            body.len()
+        );
+        let Ok(mut conn) = std::net::TcpStream::connect(("127.0.0.1", self.ros_port)) else {
+            return false;
+        };
+        let _ = conn.set_read_timeout(Some(Duration::from_secs(5)));
+        let mut reply = String::new();
+        if conn.write_all(request.as_bytes()).is_err() || conn.read_to_string(&mut reply).is_err() {
+            return false;
+        }
+        // The reply's first value is the status code: [1, "node api", uri].
+        let values: String = reply.split_whitespace().collect();
+        values.contains("<array><data><value><int>1</int></value>")
+            || values.contains("<array><data><value><i4>1</i4></value>")
     }
 }
 

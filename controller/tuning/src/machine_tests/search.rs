@@ -235,7 +235,7 @@ fn a_verification_short_of_the_bar_is_measured_on_to_the_minute() {
 
 /// In a run whose core windows missed while their means held
 /// (`Run::bursty`), a verification that holds its first measurement is
-/// measured on to [`measure::RECORD_WINDOWS`] windows whatever its margin,
+/// measured on to `tuning.recordSeconds` (120) whatever its margin,
 /// in pieces of 30 s, and judged at the first piece that misses a window.
 /// The same run, not bursty, holds at once on the same windows.
 #[test]
@@ -255,7 +255,7 @@ fn a_bursty_run_verifies_a_config_over_two_clean_minutes_stopping_at_the_first_m
     assert_eq!(reasons(&out), vec!["NearBoundary"]);
     assert!(
         event_text(&out[0]).contains(
-            "trial 1 held over 10 s, this run's core windows miss in bursts while their means hold, so a config must hold 120 windows in a row; measuring on to 120 s, stopping at the first miss"
+            "trial 1 held over 10 s, this run's core windows miss in bursts while their means hold, so a config must hold 120 s without a miss (tuning.recordSeconds); measuring on to 120 s, stopping at the first miss"
         ),
         "{out:?}"
     );
