@@ -522,30 +522,61 @@ impl Store {
         reason: &Reason,
         message: &str,
     ) -> Result<()> {
+        self.put_state_and_events(None, obj, &[(type_, reason.clone(), message.to_string())])
+    }
+
+    /// Saves a controller-private document (as [`Store::put_state`]; `None`:
+    /// none) and records `events` (type, reason, message) about `obj`, in one
+    /// transaction: a crash leaves both or neither. A tuning run's step
+    /// writes its next resume point with the events it emitted, so a run
+    /// resumed after a kill neither repeats a step whose events were
+    /// recorded nor loses them.
+    pub fn put_state_and_events(
+        &self,
+        state: Option<(&str, &str, &str)>,
+        obj: &Value,
+        events: &[(&str, Reason, String)],
+    ) -> Result<()> {
         let (ns, name) = key_of(obj);
         let kind = obj["kind"].as_str().unwrap_or("").to_string();
         let uid = obj["metadata"]["uid"].as_str().unwrap_or("").to_string();
         let time = now_rfc3339();
-        let id = self.with(|c| {
-            c.execute(
-                "INSERT INTO events (time, namespace, kind, name, uid, type, reason, message) VALUES (?1,?2,?3,?4,?5,?6,?7,?8)",
-                params![time, ns, kind, name, uid, type_, reason.as_str(), message],
-            )?;
-            let id = c.last_insert_rowid();
-            c.execute("DELETE FROM events WHERE id <= ?1", params![id - 10_000])?;
-            Ok(id)
+        let ids = self.with(|c| {
+            let tx = c.transaction()?;
+            if let Some((scope, key, body)) = state {
+                tx.execute(
+                    "INSERT INTO controller_state (scope, key, body) VALUES (?1, ?2, ?3)
+                     ON CONFLICT(scope, key) DO UPDATE SET body=excluded.body",
+                    params![scope, key, body],
+                )?;
+            }
+            let mut ids = Vec::with_capacity(events.len());
+            for (type_, reason, message) in events {
+                tx.execute(
+                    "INSERT INTO events (time, namespace, kind, name, uid, type, reason, message) VALUES (?1,?2,?3,?4,?5,?6,?7,?8)",
+                    params![time, ns, kind, name, uid, type_, reason.as_str(), message],
+                )?;
+                ids.push(tx.last_insert_rowid());
+            }
+            if let Some(last) = ids.last() {
+                tx.execute("DELETE FROM events WHERE id <= ?1", params![last - 10_000])?;
+            }
+            tx.commit()?;
+            Ok(ids)
         })?;
-        let _ = self.events.send(Event {
-            id,
-            time,
-            namespace: ns,
-            kind,
-            name,
-            uid,
-            type_: type_.into(),
-            reason: reason.clone(),
-            message: message.into(),
-        });
+        for (id, (type_, reason, message)) in ids.into_iter().zip(events) {
+            let _ = self.events.send(Event {
+                id,
+                time: time.clone(),
+                namespace: ns.clone(),
+                kind: kind.clone(),
+                name: name.clone(),
+                uid: uid.clone(),
+                type_: (*type_).into(),
+                reason: reason.clone(),
+                message: message.clone(),
+            });
+        }
         Ok(())
     }
 

@@ -184,3 +184,41 @@ fn data_survives_reopen() {
         Reason::Created
     );
 }
+
+/// A tuning step's resume point and its events are written together: both
+/// are there after a reopen, the events in order, and live subscribers get
+/// each once.
+#[test]
+fn state_and_events_are_written_together() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("t.db");
+    {
+        let s = Store::open(&path).unwrap();
+        let mut live = s.subscribe_events();
+        let events = [
+            ("Normal", Reason::Created, "trial 3".to_string()),
+            ("Warning", Reason::Created, "trial 3 again".to_string()),
+        ];
+        s.put_state_and_events(
+            Some(("tuning", "default/a", "{\"n\":3}")),
+            &stack("a", "spot"),
+            &events,
+        )
+        .unwrap();
+        let got: Vec<String> = (0..2).map(|_| live.try_recv().unwrap().message).collect();
+        assert_eq!(got, ["trial 3", "trial 3 again"]);
+        assert!(live.try_recv().is_err(), "each event once");
+    }
+    let s = Store::open(&path).unwrap();
+    assert_eq!(
+        s.get_state("tuning", "default/a").unwrap().as_deref(),
+        Some("{\"n\":3}")
+    );
+    let events = s.events(None, None, Some("a")).unwrap();
+    let seen: Vec<(&str, &str)> = events
+        .iter()
+        .map(|e| (e.type_.as_str(), e.message.as_str()))
+        .collect();
+    assert_eq!(seen, [("Normal", "trial 3"), ("Warning", "trial 3 again")]);
+    assert!(events[0].id < events[1].id);
+}

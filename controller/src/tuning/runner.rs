@@ -321,13 +321,36 @@ impl Runner {
         }
         let (next, outputs) = machine::step(run, input, &env);
         run = next;
-        for o in outputs {
-            self.output(o);
-        }
+        // The step's events go to the store with its resume point, in one
+        // transaction: a run resumed after a crash neither repeats a step
+        // whose events were recorded (a trial's event twice) nor loses them.
+        // Profiles are saved before: a save is idempotent, so a step
+        // replayed after a crash in between saves it again.
+        let events: Vec<(&str, Reason, String)> =
+            outputs.into_iter().map(|o| self.output(o)).collect();
+        let body = serde_json::to_string(&Persisted {
+            uid: uid.clone(),
+            run: run.clone(),
+        })
+        .map_err(|source| {
+            fail(
+                RunnerError::State {
+                    key: key.clone(),
+                    source,
+                },
+                Some(run.clone()),
+            )
+        })?;
+        store
+            .put_state_and_events(Some((STATE_SCOPE, &key, &body)), &obj, &events)
+            .map_err(|e| fail(e.into(), Some(run.clone())))?;
         Ok(Some(run))
     }
 
-    fn output(&self, o: Output) {
+    /// Acts on one output of a step; returns the event it makes (type,
+    /// reason, message), for the store.
+    fn output(&self, o: Output) -> (&'static str, Reason, String) {
+        let kind = |normal: bool| if normal { "Normal" } else { "Warning" };
         match o {
             Output::Event {
                 warning,
@@ -351,19 +374,19 @@ impl Runner {
                         .inc(),
                     _ => {}
                 }
-                self.event(!warning, &reason, &message);
+                (kind(!warning), reason, message)
             }
             Output::SaveProfile(p) => match profiles::save(&self.ctx.store, &p) {
-                Ok(()) => self.event(
-                    true,
-                    &Reason::ProfileSaved,
-                    &format!(
+                Ok(()) => (
+                    kind(true),
+                    Reason::ProfileSaved,
+                    format!(
                         "config library: saved ConfigProfile {} for context {}",
                         p.metadata.name,
                         p.spec.context.key()
                     ),
                 ),
-                Err(e) => self.event(false, &Reason::ProfileSaveFailed, &e.to_string()),
+                Err(e) => (kind(false), Reason::ProfileSaveFailed, e.to_string()),
             },
         }
     }
