@@ -71,6 +71,18 @@ struct Persisted {
     run: Run,
 }
 
+/// A run as persisted (its resume point) for the spec with `uid`.
+fn persisted(uid: &str, run: &Run, key: &str) -> Result<String, RunnerError> {
+    serde_json::to_string(&Persisted {
+        uid: uid.to_string(),
+        run: run.clone(),
+    })
+    .map_err(|source| RunnerError::State {
+        key: key.to_string(),
+        source,
+    })
+}
+
 fn run_key(ns: &str, name: &str) -> String {
     format!("{ns}/{name}")
 }
@@ -291,19 +303,7 @@ impl Runner {
             tuning_allowed: tuning_allowed(&spec),
         };
         // Persist the resume point and publish status before doing the IO.
-        let body = serde_json::to_string(&Persisted {
-            uid: uid.clone(),
-            run: run.clone(),
-        })
-        .map_err(|source| {
-            fail(
-                RunnerError::State {
-                    key: key.clone(),
-                    source,
-                },
-                Some(run.clone()),
-            )
-        })?;
+        let body = persisted(&uid, &run, &key).map_err(|e| fail(e, Some(run.clone())))?;
         store
             .put_state(STATE_SCOPE, &key, &body)
             .map_err(|e| fail(e.into(), Some(run.clone())))?;
@@ -328,19 +328,7 @@ impl Runner {
         // replayed after a crash in between saves it again.
         let events: Vec<(&str, Reason, String)> =
             outputs.into_iter().map(|o| self.output(o)).collect();
-        let body = serde_json::to_string(&Persisted {
-            uid: uid.clone(),
-            run: run.clone(),
-        })
-        .map_err(|source| {
-            fail(
-                RunnerError::State {
-                    key: key.clone(),
-                    source,
-                },
-                Some(run.clone()),
-            )
-        })?;
+        let body = persisted(&uid, &run, &key).map_err(|e| fail(e, Some(run.clone())))?;
         store
             .put_state_and_events(Some((STATE_SCOPE, &key, &body)), &obj, &events)
             .map_err(|e| fail(e.into(), Some(run.clone())))?;
