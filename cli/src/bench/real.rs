@@ -89,7 +89,11 @@ pub async fn run_stack(
     let (stack, mut spec) = example(name)?;
     if let Some(m) = p.max_trials {
         spec.spec.tuning.max_trials = spec.spec.tuning.max_trials.min(m);
-        spec.spec.tuning.record_seconds = spec.spec.tuning.record_seconds.min(10.0);
+        spec.spec.tuning.record_seconds = spec
+            .spec
+            .tuning
+            .record_seconds
+            .min(super::QUICK_RECORD_SECONDS);
     }
     let defs = measure::metric_defs(&stack.spec, &spec.spec);
     let mut rows = Vec::new();
