@@ -828,11 +828,13 @@ pub fn shortfall(defs: &[MetricDef], eval: &measure::Evaluation, minute: bool) -
 /// Whether a verification's measurement holds. A first measurement holds
 /// when ≥ [`SATISFIED`] of its windows held and every core constraint's
 /// bound holds over them (the same rule as a trial's). One measured on to
-/// the minute because its margin was short of the bar, or to the record of
-/// a run whose core windows miss in bursts (`minute`, see
-/// [`measure::short_of_bar`], `tuning.recordSeconds`), is judged as
-/// the bar judges a minute, by its windows alone
-/// ([`measure::BAR_SATISFACTION`]). Measured on
+/// the minute because its margin was short of the bar, and every
+/// measurement of a run whose core windows miss in bursts (measured on to
+/// its record; `minute`, see [`measure::short_of_bar`],
+/// `tuning.recordSeconds`), is judged as the bar judges a minute, by its
+/// windows alone ([`measure::BAR_SATISFACTION`]): in a bursty run a dip
+/// does not scale with the spread, and the record is the stronger test.
+/// Measured on
 /// real-nodelets (2026-11-25): with the bound applied over the minute too,
 /// a back-off that held all 60 windows, its bound 24.99 against 25 Hz, was
 /// rejected, and the run verified a trial with a tenth of its objective.
