@@ -261,6 +261,9 @@ impl Runner {
         };
         let generation = spec.metadata.generation.unwrap_or(0);
         let uid = spec.metadata.uid.clone().unwrap_or_default();
+        // A run carried from this runner's last step had its resume point
+        // written with that step's events.
+        let carried = matches!(&run, Some(r) if r.generation == generation);
         let mut run = match run {
             Some(r) if r.generation == generation => r,
             Some(old) => {
@@ -302,11 +305,14 @@ impl Runner {
             cpus,
             tuning_allowed: tuning_allowed(&spec),
         };
-        // Persist the resume point and publish status before doing the IO.
-        let body = persisted(&uid, &run, &key).map_err(|e| fail(e, Some(run.clone())))?;
-        store
-            .put_state(STATE_SCOPE, &key, &body)
-            .map_err(|e| fail(e.into(), Some(run.clone())))?;
+        // Persist a new, resumed or re-specified run's resume point and
+        // publish status before doing the IO.
+        if !carried {
+            let body = persisted(&uid, &run, &key).map_err(|e| fail(e, Some(run.clone())))?;
+            store
+                .put_state(STATE_SCOPE, &key, &body)
+                .map_err(|e| fail(e.into(), Some(run.clone())))?;
+        }
         self.write_status(&run, &env, generation)
             .map_err(|e| fail(e, Some(run.clone())))?;
         self.graph_interval_ms = (spec.spec.monitoring.graph_interval_seconds * 1000.0) as u64;
@@ -319,20 +325,25 @@ impl Runner {
         if matches!(input, Input::Observed { .. }) {
             self.next_graph_check_ms = self.ctx.clock.now_ms() + self.graph_interval_ms;
         }
+        let before = Some(run.clone());
         let (next, outputs) = machine::step(run, input, &env);
         run = next;
         // The step's events go to the store with its resume point, in one
         // transaction: a run resumed after a crash neither repeats a step
         // whose events were recorded (a trial's event twice) nor loses them.
         // Profiles are saved before: a save is idempotent, so a step
-        // replayed after a crash in between saves it again.
+        // replayed after a crash in between saves it again. A write that
+        // fails replays the step too, from the run before it.
         let events: Vec<(&str, Reason, String)> =
             outputs.into_iter().map(|o| self.output(o)).collect();
-        let body = persisted(&uid, &run, &key).map_err(|e| fail(e, Some(run.clone())))?;
-        store
-            .put_state_and_events(Some((STATE_SCOPE, &key, &body)), &obj, &events)
-            .map_err(|e| fail(e.into(), Some(run.clone())))?;
-        Ok(Some(run))
+        let body = match persisted(&uid, &run, &key) {
+            Ok(b) => b,
+            Err(e) => return Err(fail(e, before)),
+        };
+        match store.put_state_and_events(Some((STATE_SCOPE, &key, &body)), &obj, &events) {
+            Ok(()) => Ok(Some(run)),
+            Err(e) => Err(fail(e.into(), before)),
+        }
     }
 
     /// Acts on one output of a step; returns the event it makes (type,
