@@ -519,6 +519,9 @@ impl Agent {
     /// [`Agent::thaw_app`] or [`Agent::stop_app`] (a stop thaws them first so
     /// they get its SIGINT). The flag survives agent restarts and node
     /// restarts: processes that show up in a frozen node are frozen too.
+    /// A vfork parent whose child was stopped before its exec is not
+    /// stopped itself: it waits in the kernel (state `D`) for the child,
+    /// and runs no code until the thaw continues it.
     pub fn freeze_app(&self, app: &str) -> Result<()> {
         self.set_frozen(app, true)?;
         self.emit(AgentEvent::AppFrozen {

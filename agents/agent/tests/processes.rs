@@ -271,10 +271,10 @@ async fn a_frozen_app_uses_no_cpu_until_thawed_and_still_stops_gracefully() {
         |e| matches!(e, AgentEvent::AppFrozen { app } if app == "hogs"),
     )
     .await;
-    // Every process of the app, the forker's children included, is stopped.
+    // Every process of the app, the forker's children included, is held.
     let stopped = |n: &configbot_cgroups::NodeName| {
         let pids = agent.backend().pids(n).unwrap();
-        !pids.is_empty() && pids.iter().all(|p| proc_state(*p) == Some('T'))
+        !pids.is_empty() && all_held(&pids)
     };
     wait_until_async("hogs stopped", T, POLL, async || {
         stopped(&hog) && stopped(&forker)

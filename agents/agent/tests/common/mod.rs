@@ -210,6 +210,36 @@ pub fn stack_json(json: &str) -> StackSpec {
 
 /// The scheduler state letter of `pid` (`T`: stopped by a signal).
 pub fn proc_state(pid: u32) -> Option<char> {
+    stat_fields(pid)?.first()?.chars().next()
+}
+
+/// The parent of `pid`.
+pub fn proc_ppid(pid: u32) -> Option<u32> {
+    stat_fields(pid)?.get(1)?.parse().ok()
+}
+
+/// The fields of `/proc/<pid>/stat` after the command name: state, ppid, …
+fn stat_fields(pid: u32) -> Option<Vec<String>> {
     let s = std::fs::read_to_string(format!("/proc/{pid}/stat")).ok()?;
-    s.rsplit_once(')')?.1.trim_start().chars().next()
+    Some(
+        s.rsplit_once(')')?
+            .1
+            .split_whitespace()
+            .map(str::to_owned)
+            .collect(),
+    )
+}
+
+/// Whether none of `pids` (a frozen node's processes) can run: each is
+/// stopped by a signal, or is a vfork parent (`D`, as dash runs a simple
+/// command) whose child among `pids` was stopped before its exec; that
+/// parent waits in the kernel until the child is continued (seen in CI:
+/// `while :; do sleep 0.01; done` frozen mid-vfork).
+pub fn all_held(pids: &[u32]) -> bool {
+    let stopped = |p: u32| proc_state(p) == Some('T');
+    pids.iter().all(|&p| {
+        stopped(p)
+            || (proc_state(p) == Some('D')
+                && pids.iter().any(|&c| proc_ppid(c) == Some(p) && stopped(c)))
+    })
 }
