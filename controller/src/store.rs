@@ -544,11 +544,7 @@ impl Store {
         let ids = self.with(|c| {
             let tx = c.transaction()?;
             if let Some((scope, key, body)) = state {
-                tx.execute(
-                    "INSERT INTO controller_state (scope, key, body) VALUES (?1, ?2, ?3)
-                     ON CONFLICT(scope, key) DO UPDATE SET body=excluded.body",
-                    params![scope, key, body],
-                )?;
+                upsert_state(&tx, scope, key, body)?;
             }
             let mut ids = Vec::with_capacity(events.len());
             for (type_, reason, message) in events {
@@ -614,14 +610,7 @@ impl Store {
     /// Save a controller-private document (e.g. a tuning run's resume point),
     /// replacing the previous one; one transaction, durable on return.
     pub fn put_state(&self, scope: &str, key: &str, body: &str) -> Result<()> {
-        self.with(|c| {
-            c.execute(
-                "INSERT INTO controller_state (scope, key, body) VALUES (?1, ?2, ?3)
-                 ON CONFLICT(scope, key) DO UPDATE SET body=excluded.body",
-                params![scope, key, body],
-            )
-            .map(|_| ())
-        })
+        self.with(|c| upsert_state(c, scope, key, body))
     }
 
     /// A controller-private document saved by [`Store::put_state`].
@@ -824,3 +813,14 @@ fn same_user_content(a: &Value, b: &Value) -> bool {
 #[cfg(test)]
 #[path = "store_tests.rs"]
 mod tests;
+
+/// Writes a controller-private document, replacing the previous one (for
+/// [`Store::put_state`] and [`Store::put_state_and_events`]).
+fn upsert_state(c: &Connection, scope: &str, key: &str, body: &str) -> rusqlite::Result<()> {
+    c.execute(
+        "INSERT INTO controller_state (scope, key, body) VALUES (?1, ?2, ?3)
+         ON CONFLICT(scope, key) DO UPDATE SET body=excluded.body",
+        params![scope, key, body],
+    )
+    .map(|_| ())
+}

@@ -83,6 +83,11 @@ fn persisted(uid: &str, run: &Run, key: &str) -> Result<String, RunnerError> {
     })
 }
 
+/// An event's type: `Normal` or `Warning`.
+fn event_type(normal: bool) -> &'static str {
+    if normal { "Normal" } else { "Warning" }
+}
+
 fn run_key(ns: &str, name: &str) -> String {
     format!("{ns}/{name}")
 }
@@ -208,12 +213,10 @@ impl Runner {
             .store
             .get(Kind::PerformanceSpec, &self.ns, &self.name)
         {
-            let _ = self.ctx.store.record_event(
-                &obj,
-                if normal { "Normal" } else { "Warning" },
-                reason,
-                message,
-            );
+            let _ = self
+                .ctx
+                .store
+                .record_event(&obj, event_type(normal), reason, message);
         }
     }
 
@@ -349,7 +352,6 @@ impl Runner {
     /// Acts on one output of a step; returns the event it makes (type,
     /// reason, message), for the store.
     fn output(&self, o: Output) -> (&'static str, Reason, String) {
-        let kind = |normal: bool| if normal { "Normal" } else { "Warning" };
         match o {
             Output::Event {
                 warning,
@@ -373,11 +375,11 @@ impl Runner {
                         .inc(),
                     _ => {}
                 }
-                (kind(!warning), reason, message)
+                (event_type(!warning), reason, message)
             }
             Output::SaveProfile(p) => match profiles::save(&self.ctx.store, &p) {
                 Ok(()) => (
-                    kind(true),
+                    event_type(true),
                     Reason::ProfileSaved,
                     format!(
                         "config library: saved ConfigProfile {} for context {}",
@@ -385,7 +387,7 @@ impl Runner {
                         p.spec.context.key()
                     ),
                 ),
-                Err(e) => (kind(false), Reason::ProfileSaveFailed, e.to_string()),
+                Err(e) => (event_type(false), Reason::ProfileSaveFailed, e.to_string()),
             },
         }
     }
