@@ -461,7 +461,9 @@ pub struct Run {
     /// Whether a complete measurement of this run missed windows while
     /// every core mean held its target ([`outcome::bursts`]): the core
     /// rate dips in bursts, so a verification must show a clean record of
-    /// the spec's `tuning.recordSeconds` (see [`Env::record_ms`]).
+    /// the spec's `tuning.recordSeconds` (see [`Env::record_ms`]), and the
+    /// trials after it are judged by their windows
+    /// ([`measure::judge_by_windows`]).
     #[serde(default)]
     pub bursty: bool,
 }

@@ -22,7 +22,10 @@
 //!   five windows, 2.96 from ten) was tried and dropped: it judged demo
 //!   trials whose every window held infeasible, and the demo took 13 trials
 //!   and 319 s against 254 s with 2.33 on the same busy machine, ending with
-//!   less detection (1.1 against 1.9 Hz).
+//!   less detection (1.1 against 1.9 Hz). In a run whose core windows miss
+//!   in bursts, a trial is judged by its windows instead, its worst window
+//!   the value the optimizer sees ([`judge_by_windows`]): there the
+//!   verification's two-minute record is the test.
 //! - **Near the boundary** ([`near_boundary`]): a measurement whose bound
 //!   misses but whose windows mostly hold is measured longer instead of
 //!   being discarded, up to [`BOUNDARY_WINDOWS`] windows or more.
@@ -254,6 +257,34 @@ pub fn robust_value(def: &MetricDef, values: &[f64]) -> f64 {
     } else {
         mean + BOUND_Z * sd
     }
+}
+
+/// A measurement judged by its windows alone (pure), as a trial of a run
+/// whose core windows miss in bursts is (`Run::bursty`): each core
+/// constraint's value becomes its worst window, and the measurement is
+/// feasible when every window held. There a dip does not scale with the
+/// spread of the windows around it, so the bound neither predicts a clean
+/// minute nor rules one out, and the verification's record (two minutes
+/// without a miss) is the test a config must pass; the bench's oracle
+/// screens its configs the same way. Measured on real-nodelets
+/// (2026-11-27): judged by the bound, four trials at objective 0.97–1.0
+/// whose 10 windows were all on target were called infeasible, and the run
+/// kept a config at 0.46, while the oracle's best, screened by its windows,
+/// held two minutes at 1.0.
+pub fn judge_by_windows(defs: &[MetricDef], report: &MeasureReport, eval: &mut Evaluation) {
+    let mut feasible = true;
+    let core = defs.iter().filter(|d| d.core);
+    for (d, c) in core.zip(eval.constraints.iter_mut()) {
+        let values = series(report, &d.probe).unwrap_or(&[]);
+        let worst = if d.at_least {
+            values.iter().copied().fold(f64::INFINITY, f64::min)
+        } else {
+            values.iter().copied().fold(f64::NEG_INFINITY, f64::max)
+        };
+        *c = if values.is_empty() { 0.0 } else { worst };
+        feasible &= !values.is_empty() && d.holds(*c);
+    }
+    eval.feasible = feasible;
 }
 
 /// Whether a measurement that is not feasible is near the boundary, so

@@ -267,7 +267,10 @@ pub(crate) fn record_trial(
     censored: bool,
     out: &mut Vec<Output>,
 ) {
-    let eval = measure::evaluate(defs, report, env.spec.tuning.scalarization);
+    let mut eval = measure::evaluate(defs, report, env.spec.tuning.scalarization);
+    if run.bursty {
+        measure::judge_by_windows(defs, report, &mut eval);
+    }
     let rec = TrialRecord {
         config,
         x,
@@ -282,7 +285,7 @@ pub(crate) fn record_trial(
     out.push(normal(
         Reason::Trial,
         format!(
-            "trial {}: satisfaction {:.1} %, objective {}, {}{}",
+            "trial {}: satisfaction {:.1} %, objective {}, {}{}{}",
             run.trials.len(),
             rec.eval.satisfaction * 100.0,
             rec.eval
@@ -293,6 +296,7 @@ pub(crate) fn record_trial(
             } else {
                 "infeasible"
             },
+            if run.bursty { " by its windows" } else { "" },
             if censored { " (stopped early)" } else { "" }
         ),
     ));

@@ -874,6 +874,36 @@ fn a_trial_near_the_boundary_is_measured_longer_not_discarded() {
     assert!(!run.trials[0].feasible());
 }
 
+/// In a run whose core windows miss in bursts (`Run::bursty`), a trial is
+/// judged as its verification and the bench's oracle judge a config, by its
+/// windows: ten windows on target, spread so that the bound misses (the
+/// same trial is infeasible in a run that is not bursty, above), are
+/// feasible there, and the value the models learn is the worst window; one
+/// window missed is infeasible.
+#[test]
+fn a_bursty_run_judges_a_trial_by_its_windows() {
+    let (st, sp) = (stack(), spec(0.0, 20));
+    let env = env(&st, &sp);
+    let spread = [37.0, 40.0, 36.0, 40.0, 38.0];
+    let (mut run, _) = baseline_then_first_trial(&env, &BAD, report(&spread, 2.0));
+    run.bursty = true;
+    let (held, out) = step(run.clone(), report(&spread, 2.0), &env);
+    assert_eq!(reasons(&out), vec!["Trial"]);
+    let trial = &held.trials[0];
+    assert!(trial.feasible(), "{:?}", trial.eval);
+    assert_eq!(trial.eval.constraints, vec![36.0], "the worst window");
+    assert!(
+        event_text(&out[0])
+            .contains("satisfaction 100.0 %, objective 0.200, feasible by its windows"),
+        "{out:?}"
+    );
+    let mut one_low = spread;
+    one_low[3] = 34.0;
+    let (missed, _) = step(run, report(&one_low, 2.0), &env);
+    assert!(!missed.trials[0].feasible(), "{:?}", missed.trials[0].eval);
+    assert_eq!(missed.trials[0].eval.constraints, vec![34.0]);
+}
+
 #[test]
 fn with_every_knob_pinned_the_pinned_config_is_measured_before_a_verdict() {
     let st = stack();
