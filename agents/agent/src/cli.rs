@@ -128,8 +128,6 @@ impl AgentArgs {
     }
 }
 
-/// Reads a stack file: a JSON `StackSpec` (has top-level `apps`) or a
-/// RobotStack manifest (YAML or JSON, validated by `configbot_manifests`).
 /// Logs the crates' `tracing` events to stderr, filtered by `RUST_LOG`
 /// (default `info`; e.g. `RUST_LOG=configbot_ros1=debug`). Called once by
 /// each binary that runs the agent or the control plane; a second call is a
@@ -143,6 +141,8 @@ pub fn init_logging() {
         .try_init();
 }
 
+/// Reads a stack file: a JSON `StackSpec` (has top-level `apps`) or a
+/// RobotStack manifest (YAML or JSON, validated by `configbot_manifests`).
 pub fn read_stack(path: &Path) -> Result<StackSpec> {
     let text = std::fs::read_to_string(path).map_err(|source| Error::Io {
         path: path.to_path_buf(),

@@ -17,11 +17,11 @@
 //! the same weight and gives the core nodes [`CORE_WEIGHT`] in every config
 //! from the moment a trial or a verification misses in bursts
 //! ([`KnobSpace::weighted`], set by `outcome::weigh_on_bursts`). Measured
-//! two other ways on this machine class (README, sessions 23 and 24):
-//! weighted in every config, the real stacks' core trackers stopped
-//! dropping frames when the non-core detectors were busy at once, but
-//! Basic-NAV's detector lost its objective; searched as a knob, the extra
-//! dimension cost the real nodelet stack its objective.
+//! two other ways on this machine class (docs/tuning-history.md, sessions
+//! 23 and 24): weighted in every config, the real stacks' core trackers
+//! stopped dropping frames when the non-core detectors were busy at once,
+//! but Basic-NAV's detector lost its objective; searched as a knob, the
+//! extra dimension cost the real nodelet stack its objective.
 
 use std::collections::BTreeMap;
 

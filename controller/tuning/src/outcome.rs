@@ -740,8 +740,8 @@ pub fn bursts(defs: &[MetricDef], eval: &measure::Evaluation) -> bool {
 /// before stay as measured (a weight only helps the core nodes, so a trial
 /// that held still holds). Weighting only on this evidence keeps a stack
 /// whose core targets are missed on average, or not at all, unweighted: on
-/// Basic-NAV weighted core nodes cost the detector its objective (README,
-/// session 23).
+/// Basic-NAV weighted core nodes cost the detector its objective
+/// (docs/tuning-history.md, session 23).
 pub fn weigh_on_bursts(
     run: &mut Run,
     defs: &[MetricDef],
