@@ -3,8 +3,9 @@
 //! non-zero saying it was interrupted. Real processes and cgroups: the test
 //! waits until the bench's robot runs nodes, sends SIGINT, and checks that
 //! the process exits, the subtree is gone in every v1 hierarchy and the
-//! nodes' processes are gone. The guard kills the bench and removes what it
-//! left if the test fails.
+//! nodes' processes are gone; interrupted after its first stack, its
+//! `bench.json` keeps that stack's rows, marked incomplete. The guard kills
+//! the bench and removes what it left if the test fails.
 
 mod common;
 
@@ -70,19 +71,20 @@ fn alive(pid: u32) -> bool {
 /// Starts `configbot bench --quick`, waits (at most `wait`) until `ready`
 /// holds for the node pids in its subtree and its stdout, sends `signal`,
 /// and checks the bench exits 130 saying it was interrupted, with its
-/// subtree and node processes gone.
+/// subtree and node processes gone. Returns the bench's output folder
+/// (`None` when the machine has no cgroup v1 cpu hierarchy).
 fn interrupt_when(
     signal: libc::c_int,
     wait: Duration,
     what: &str,
     ready: impl Fn(&[u32], &str) -> bool,
-) {
+) -> Option<tempfile::TempDir> {
     let Some(cpu) = configbot_cgroups::Layout::detect()
         .ok()
         .and_then(|l| l.v1_cpu)
     else {
         configbot_test_support::skip("no cgroup v1 cpu hierarchy");
-        return;
+        return None;
     };
     let _serial = common::serial();
     let dir = tempfile::tempdir().expect("temp dir");
@@ -154,6 +156,7 @@ fn interrupt_when(
         nodes.len(),
         took.as_secs_f64()
     );
+    Some(dir)
 }
 
 #[test]
@@ -165,6 +168,35 @@ fn ctrl_c_stops_the_bench_robot_and_removes_its_cgroups() {
         "the first robot's nodes ran",
         |pids, _| pids.len() >= 2,
     );
+}
+
+#[test]
+fn an_interrupted_bench_keeps_the_stacks_it_finished_in_bench_json() {
+    // Once basic-nav's table is printed, while the cross-evaluation or the
+    // timeline runs a robot: bench.json holds basic-nav's rows, marked
+    // incomplete.
+    let Some(dir) = interrupt_when(
+        libc::SIGINT,
+        Duration::from_secs(420),
+        "basic-nav's rows were measured and a later step ran a robot",
+        |pids, out| pids.len() >= 2 && out.contains("SETTLED S"),
+    ) else {
+        return;
+    };
+    let path = dir.path().join("out").join("bench.json");
+    let text = std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    let json: serde_json::Value = serde_json::from_str(&text).expect("bench.json is JSON");
+    assert_eq!(json["complete"], false, "{text}");
+    let methods: Vec<&str> = json["results"]
+        .as_array()
+        .expect("results")
+        .iter()
+        .filter(|r| r["stack"] == "basic-nav")
+        .filter_map(|r| r["method"].as_str())
+        .collect();
+    for m in ["default", "cgroup-only", "configbot"] {
+        assert!(methods.contains(&m), "no basic-nav {m} row in {methods:?}");
+    }
 }
 
 #[test]

@@ -297,6 +297,7 @@ fn quick_bench_writes_every_table_and_plot() {
     )
     .expect("bench.json is JSON");
     assert_eq!(json["quick"], true);
+    assert_eq!(json["complete"], true);
     check_results(json["results"].as_array().expect("results"));
     check_cross(json["crossEvaluation"].as_array().expect("crossEvaluation"));
     check_timeline(&json["timeline"], out.path());

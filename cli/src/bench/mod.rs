@@ -3,12 +3,14 @@
 //! random configs from the knob space, ConfigBot with CPU knobs only
 //! (adaptors off) and full ConfigBot, each tuning run on a fresh robot so no
 //! library entry carries over. It prints a table like the paper's Table III,
-//! writes `bench.json` and, per stack, the tuning progress and the histogram
-//! of the core rate (default vs full ConfigBot) as SVG. Then the paper's
-//! Table IV ([`cross`]: each stack's best config on the other stacks) and
-//! Fig. 7 ([`timeline`]: Basic-NAV → Terrain-NAV → Basic-NAV on one robot).
-//! Tuning cost is counted in trials and in seconds from applying the spec,
-//! read from the spec's status as the run publishes it ([`follow`]).
+//! writes `bench.json` (after each stack, so a stopped run keeps what it
+//! measured; `complete` once it ran to its end) and, per stack, the tuning
+//! progress and the histogram of the core rate (default vs full ConfigBot)
+//! as SVG. Then the paper's Table IV ([`cross`]: each stack's best config
+//! on the other stacks) and Fig. 7 ([`timeline`]: Basic-NAV → Terrain-NAV →
+//! Basic-NAV on one robot). Tuning cost is counted in trials and in seconds
+//! from applying the spec, read from the spec's status as the run publishes
+//! it ([`follow`]).
 //! `--stacks real` measures the real Debian ROS 1 stacks instead ([`real`]:
 //! launch and per-node defaults, cgroup-only, ConfigBot per seed, the oracle).
 
@@ -361,6 +363,11 @@ fn real_plan(a: &BenchArgs, p: &Plan) -> real::RealPlan {
 async fn bench(a: &BenchArgs, cur: &mut Current) -> anyhow::Result<ExitCode> {
     let p = plan(a);
     std::fs::create_dir_all(&a.out)?;
+    // A bench.json left by an earlier run in this folder is not this run's.
+    match std::fs::remove_file(a.out.join("bench.json")) {
+        Err(e) if e.kind() != std::io::ErrorKind::NotFound => return Err(e.into()),
+        _ => {}
+    }
     let mut results = Vec::new();
     let mut oracles = Vec::new();
     let rp = real_plan(a, &p);
@@ -374,6 +381,7 @@ async fn bench(a: &BenchArgs, cur: &mut Current) -> anyhow::Result<ExitCode> {
             real::write_oracle(&a.out, &o)?;
             oracles.push(o);
         }
+        write_results(a, &p, &results, &[], None, &oracles, false)?;
     }
     if !oracles.is_empty() || p.stacks.iter().any(|s| real::is_real(s)) {
         let defs_of = |name: &str| {
@@ -398,12 +406,14 @@ async fn bench(a: &BenchArgs, cur: &mut Current) -> anyhow::Result<ExitCode> {
             results.push(tuned(cur, a, name, method, &stack, &s, p.window).await?);
         }
         write_plots(&a.out, name, &defs, &results)?;
+        write_results(a, &p, &results, &[], None, &oracles, false)?;
     }
     println!("\n{}", table(&results));
     let simulated = p.stacks.iter().any(|s| !real::is_real(s));
     let cross = if simulated {
         let c = cross::run(cur, a, &p, &results).await?;
         println!("\n{}", cross::matrix_table(&c));
+        write_results(a, &p, &results, &c, None, &oracles, false)?;
         c
     } else {
         Default::default()
@@ -415,16 +425,36 @@ async fn bench(a: &BenchArgs, cur: &mut Current) -> anyhow::Result<ExitCode> {
     } else {
         None
     };
-    let path = a.out.join("bench.json");
-    std::fs::write(
-        &path,
-        serde_json::to_string_pretty(&serde_json::json!({
-            "quick": a.quick, "windowSeconds": p.window, "seed": a.seed, "results": results,
-            "crossEvaluation": cross, "timeline": timeline, "oracles": oracles,
-        }))?,
-    )?;
+    let path = write_results(a, &p, &results, &cross, timeline.as_ref(), &oracles, true)?;
     println!("results: {}", path.display());
     Ok(ExitCode::SUCCESS)
+}
+
+/// Writes `bench.json` with every result measured so far; `complete` is
+/// false until the bench's last step. The bench rewrites it after each
+/// stack and after the cross-evaluation, so a run stopped midway (Ctrl-C,
+/// a failed step) keeps the stacks it finished. The file is replaced by a
+/// rename, so a reader never sees half of it.
+fn write_results(
+    a: &BenchArgs,
+    p: &Plan,
+    results: &[MethodResult],
+    cross: &[cross::CrossEntry],
+    timeline: Option<&timeline::Timeline>,
+    oracles: &[real::Oracle],
+    complete: bool,
+) -> anyhow::Result<PathBuf> {
+    let path = a.out.join("bench.json");
+    let tmp = a.out.join("bench.json.partial");
+    std::fs::write(
+        &tmp,
+        serde_json::to_string_pretty(&serde_json::json!({
+            "complete": complete, "quick": a.quick, "windowSeconds": p.window, "seed": a.seed,
+            "results": results, "crossEvaluation": cross, "timeline": timeline, "oracles": oracles,
+        }))?,
+    )?;
+    std::fs::rename(&tmp, &path)?;
+    Ok(path)
 }
 
 fn fresh_dir(out: &Path, stack: &str, method: &str) -> anyhow::Result<PathBuf> {
