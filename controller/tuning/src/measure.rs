@@ -31,9 +31,10 @@
 //!   being discarded, up to [`BOUNDARY_WINDOWS`] windows or more.
 //! - **Short of the bar** ([`short_of_bar`]): a verification that holds by
 //!   the rule above but whose margin is less than [`BAR_Z`] sd is measured
-//!   on to [`BAR_WINDOWS`] windows, the minute a user (or the bench) judges
-//!   it by, and is judged as that minute is: by its windows alone
-//!   ([`BAR_SATISFACTION`]). The 2.33·sd bound predicts
+//!   on towards [`BAR_WINDOWS`] windows, the minute a user (or the bench)
+//!   judges it by, and is judged as that minute is: by its windows alone
+//!   ([`BAR_SATISFACTION`]); it holds early once every window so far is on
+//!   target and together they clear the [`BAR_Z`] margin. The 2.33·sd bound predicts
 //!   about one miss per 100 windows, while a minute at ≥ 99.5 % allows
 //!   none in 60: on the real two-path stack two configs verified over 30
 //!   windows, every one on target, then missed one of 60.
