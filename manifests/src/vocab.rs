@@ -220,6 +220,10 @@ vocabulary! {
         /// A held config tipped, or a measured trial promises more than a
         /// back-off; the next best trial is verified.
         VerifyingNextBest,
+        /// A trial failed its verification with trials left in the budget:
+        /// the search goes on, its models revised by what the verification
+        /// measured.
+        SearchingOn,
         /// The inputs of paused apps are being recorded.
         RecordingInputs,
         /// The inputs of paused apps cannot be recorded.

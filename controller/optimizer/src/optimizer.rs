@@ -311,6 +311,48 @@ impl Optimizer {
         Ok(())
     }
 
+    /// Revises the constraint values measured at `x` (every observation there)
+    /// to `constraints`, after a longer measurement of the same config
+    /// contradicted them (a config that held its trial and missed its
+    /// verification), and takes back a stop other than the budget's: the
+    /// models that judged nothing worth another trial had learned that
+    /// config as it was first measured, so the next [`Optimizer::ask`]
+    /// proposes from the revised ones. Returns how many observations were
+    /// revised; with none at `x`, nothing changes.
+    pub fn revise(&mut self, x: &[f64], constraints: &[f64]) -> Result<usize> {
+        let u = self.problem.space.to_unit(x);
+        let Some(first) = self.observations.iter().find(|o| self.at(o, &u)) else {
+            return Ok(0);
+        };
+        let revised = Observation {
+            constraints: constraints.to_vec(),
+            ..first.clone()
+        };
+        self.problem.check(&revised)?;
+        let mut n = 0;
+        for i in 0..self.observations.len() {
+            if self.at(&self.observations[i], &u) {
+                self.observations[i].constraints = constraints.to_vec();
+                n += 1;
+            }
+        }
+        self.pending = None;
+        if !matches!(self.stopped, Some(StopReason::Budget)) {
+            self.stopped = None;
+        }
+        Ok(n)
+    }
+
+    /// Whether `o` was measured at `u` (unit cube, see [`Self::measured`]).
+    fn at(&self, o: &Observation, u: &[f64]) -> bool {
+        self.problem
+            .space
+            .to_unit(&o.x)
+            .iter()
+            .zip(u)
+            .all(|(a, b)| (a - b).abs() <= MEASURED_TOLERANCE)
+    }
+
     /// The next config to measure, or why to stop. Asking again before a
     /// `tell` returns the same proposal.
     pub fn ask(&mut self) -> Result<Proposal> {
@@ -509,14 +551,7 @@ impl Optimizer {
     /// from the cube a rounding error away, and an exact comparison let the
     /// initial design measure the current config a second time.
     fn measured(&self, u: &[f64]) -> bool {
-        let space = &self.problem.space;
-        self.observations.iter().any(|o| {
-            space
-                .to_unit(&o.x)
-                .iter()
-                .zip(u)
-                .all(|(a, b)| (a - b).abs() <= MEASURED_TOLERANCE)
-        })
+        self.observations.iter().any(|o| self.at(o, u))
     }
 
     fn next_proposal(&mut self) -> Result<Proposal> {

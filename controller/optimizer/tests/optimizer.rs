@@ -3,7 +3,7 @@
 
 use configbot_optimizer::problems::{self, TestProblem};
 use configbot_optimizer::{
-    Observation, Optimizer, Outcome, Proposal, SafetyFloor, Settings, StopReason,
+    Observation, Optimizer, Outcome, Proposal, SafetyFloor, Sense, Settings, StopReason,
 };
 
 fn problem(name: &str) -> TestProblem {
@@ -310,4 +310,56 @@ fn predictions_learn_from_extra_measurements() {
         with[0].constraints[0],
         alone[0].constraints[0]
     );
+}
+
+/// A config revised after a longer measurement missed (`Optimizer::revise`)
+/// no longer counts as the best, and a stop on expected improvement is
+/// taken back so that the search can go on; a stop on the budget stays.
+#[test]
+fn a_revised_best_trial_takes_back_a_stop_on_expected_improvement_not_the_budget() {
+    let p = problem("gramacy");
+    let settings = Settings {
+        stop_when_ei_below: Some(1e9),
+        ..small(2, 30)
+    };
+    let mut opt = Optimizer::new(p.problem.clone(), settings, &p.current).unwrap();
+    drive(&mut opt, &p, 30);
+    let Outcome::Best { best, .. } = opt.outcome() else {
+        panic!("{:?}", opt.outcome())
+    };
+    let missed: Vec<f64> = p
+        .problem
+        .constraints
+        .iter()
+        .map(|c| match c.sense {
+            Sense::AtLeast => c.threshold - 1.0,
+            Sense::AtMost => c.threshold + 1.0,
+        })
+        .collect();
+    assert_eq!(opt.revise(&best.x, &missed).unwrap(), 1);
+    let revised = opt
+        .observations()
+        .iter()
+        .find(|o| o.x == best.x)
+        .expect("still measured");
+    assert_eq!(revised.constraints, missed);
+    assert!(!p.problem.is_feasible(revised));
+    match opt.outcome() {
+        Outcome::InProgress { best: Some(next) } => assert_ne!(next.x, best.x),
+        o => panic!("the stop is taken back and another trial is the best: {o:?}"),
+    }
+    // Nothing measured there: nothing changes.
+    let elsewhere: Vec<f64> = best.x.iter().map(|v| v + 1e-3).collect();
+    assert_eq!(opt.revise(&elsewhere, &missed).unwrap(), 0);
+    // A revision of the wrong shape is refused.
+    assert!(opt.revise(&best.x, &missed[..0]).is_err());
+
+    let mut spent = Optimizer::new(p.problem.clone(), small(2, 9), &p.current).unwrap();
+    drive(&mut spent, &p, 30);
+    let Outcome::Best { best, reason } = spent.outcome() else {
+        panic!("{:?}", spent.outcome())
+    };
+    assert_eq!(reason, StopReason::Budget);
+    spent.revise(&best.x, &missed).unwrap();
+    assert_eq!(spent.ask().unwrap(), Proposal::Stop(StopReason::Budget));
 }

@@ -476,6 +476,11 @@ pub struct Run {
     /// ([`measure::judge_by_windows`]).
     #[serde(default)]
     pub bursty: bool,
+    /// How many trials had failed verification (`rejected.len()`) when the
+    /// search last went on after a failure (see `search::search_on`): it
+    /// goes on once per failure, then the best unrejected trial is verified.
+    #[serde(default)]
+    pub searched_on: usize,
 }
 
 impl Run {
@@ -524,6 +529,7 @@ impl Run {
             edges: Vec::new(),
             failed_verifications: Vec::new(),
             bursty: false,
+            searched_on: 0,
         }
     }
 

@@ -275,15 +275,10 @@ pub fn robust_value(def: &MetricDef, values: &[f64]) -> f64 {
 pub fn judge_by_windows(defs: &[MetricDef], report: &MeasureReport, eval: &mut Evaluation) {
     let mut feasible = true;
     let core = defs.iter().filter(|d| d.core);
-    for (d, c) in core.zip(eval.constraints.iter_mut()) {
-        let values = series(report, &d.probe).unwrap_or(&[]);
-        let worst = if d.at_least {
-            values.iter().copied().fold(f64::INFINITY, f64::min)
-        } else {
-            values.iter().copied().fold(f64::NEG_INFINITY, f64::max)
-        };
-        *c = if values.is_empty() { 0.0 } else { worst };
-        feasible &= !values.is_empty() && d.holds(*c);
+    for ((d, c), &w) in core.zip(eval.constraints.iter_mut()).zip(&eval.worst) {
+        let measured = series(report, &d.probe).is_some_and(|v| !v.is_empty());
+        *c = w;
+        feasible &= measured && d.holds(w);
     }
     eval.feasible = feasible;
 }
@@ -396,6 +391,10 @@ pub struct Evaluation {
     pub means: BTreeMap<String, f64>,
     /// Optimizer-facing constraint values, in metric order (core metrics only).
     pub constraints: Vec<f64>,
+    /// Each core constraint's worst window, in the same order (0 with no
+    /// window).
+    #[serde(default)]
+    pub worst: Vec<f64>,
     /// Objective means, in metric order (non-core metrics only).
     pub objectives: Vec<f64>,
     pub satisfaction: f64,
@@ -407,6 +406,7 @@ pub struct Evaluation {
 pub fn evaluate(defs: &[MetricDef], report: &MeasureReport, s: Scalarization) -> Evaluation {
     let mut means = BTreeMap::new();
     let mut constraints = Vec::new();
+    let mut worst = Vec::new();
     let mut objectives = Vec::new();
     let mut feasible = true;
     for d in defs {
@@ -421,6 +421,7 @@ pub fn evaluate(defs: &[MetricDef], report: &MeasureReport, s: Scalarization) ->
             };
             feasible &= !values.is_empty() && d.holds(r);
             constraints.push(r);
+            worst.push(worst_window(d, values));
         } else {
             objectives.push(mean);
         }
@@ -430,8 +431,23 @@ pub fn evaluate(defs: &[MetricDef], report: &MeasureReport, s: Scalarization) ->
         satisfaction: satisfaction(defs, report),
         means,
         constraints,
+        worst,
         objectives,
         feasible,
+    }
+}
+
+/// The window of `values` furthest on the missing side of `d`'s target: the
+/// least for an at-least target, the most for an at-most one; 0 with no
+/// window (as the robust value: a measurement without windows is judged
+/// infeasible by its emptiness, not by this value).
+fn worst_window(d: &MetricDef, values: &[f64]) -> f64 {
+    if values.is_empty() {
+        0.0
+    } else if d.at_least {
+        values.iter().copied().fold(f64::INFINITY, f64::min)
+    } else {
+        values.iter().copied().fold(f64::NEG_INFINITY, f64::max)
     }
 }
 

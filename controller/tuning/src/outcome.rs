@@ -846,6 +846,53 @@ pub fn holds(eval: &measure::Evaluation, minute: bool) -> bool {
     }
 }
 
+/// Tells the optimizer what a failed verification of trial `index`
+/// measured, as `eval`: each of the trial's core values becomes the worst of
+/// the trial's own, the verification's bound and its worst window, so that
+/// the models no longer count the config as feasible and a stop they made
+/// on it is taken back ([`configbot_optimizer::Optimizer::revise`]; the
+/// search may then go on, `search::search_on`). The trial's record stays as
+/// its trial measured it. Nothing is revised when those values still hold
+/// every target.
+fn revise_failed_trial(
+    run: &mut Run,
+    defs: &[MetricDef],
+    index: usize,
+    eval: &measure::Evaluation,
+    out: &mut Vec<Output>,
+) {
+    let Some(trial) = run.trials.get(index) else {
+        return;
+    };
+    let core = defs.iter().filter(|d| d.core);
+    let revised: Vec<f64> = core
+        .clone()
+        .enumerate()
+        .map(|(j, d)| {
+            let measured = [
+                trial.eval.constraints.get(j),
+                eval.constraints.get(j),
+                eval.worst.get(j),
+            ];
+            let worst = measured.into_iter().flatten().copied();
+            if d.at_least {
+                worst.fold(f64::INFINITY, f64::min)
+            } else {
+                worst.fold(f64::NEG_INFINITY, f64::max)
+            }
+        })
+        .collect();
+    if core.zip(&revised).all(|(d, &v)| d.holds(v)) {
+        return;
+    }
+    let x = trial.x.clone();
+    if let Some(o) = run.optimizer.as_mut()
+        && let Err(e) = o.revise(&x, &revised)
+    {
+        out.push(warning(Reason::OptimizerFailed, e.to_string()));
+    }
+}
+
 /// A verification measured, as `eval` (over the minute when `minute`):
 /// monitor the candidate when it [`holds`], or try the next one.
 #[allow(clippy::too_many_arguments)]
@@ -932,6 +979,7 @@ pub fn verified(
             ));
             run.edges.extend(edges);
             run.rejected.push(index);
+            revise_failed_trial(run, defs, index, &eval, out);
             if run.rejected.first() == Some(&index)
                 && let Some(t) = run.trials.get(index)
             {

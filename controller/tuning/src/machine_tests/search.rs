@@ -3,7 +3,7 @@
 //! near-best rule, and when safe exploration applies.
 
 use super::*;
-use crate::{knobs, measure, search};
+use crate::{knobs, measure, outcome, search};
 
 #[test]
 fn early_stop_is_a_censored_observation() {
@@ -130,6 +130,80 @@ fn push_trial_at(run: &mut Run, env: &Env<'_>, x: &[f64], cmd: &[f64], det: f64)
         eval: measure::evaluate(&env.defs(), &r, Default::default()),
         censored: false,
     });
+}
+
+/// A trial that fails its verification revises what the optimizer learned
+/// of it: its core value becomes the worst the verification measured (here
+/// every window at 30 Hz against 35), so the models no longer count it as
+/// feasible. When the search is then finished with trials left in the
+/// budget (its back-offs spent), it goes on with the optimizer's next
+/// trial instead of verifying a trial with less; once per failure (the next
+/// finish verifies trial 0), and not with the budget spent.
+#[test]
+fn a_failed_verification_with_trials_left_revises_the_models_and_searches_on() {
+    let (st, sp) = (stack(), spec(1.0, 5));
+    let env = env(&st, &sp);
+    let defs = env.defs();
+    let mut run = with_two_trials(&env);
+    let settings = configbot_optimizer::Settings {
+        max_trials: 6,
+        candidates: 50,
+        refine_steps: 2,
+        ..Default::default()
+    };
+    let problem = outcome::problem(&run.knobs, &defs, &env).unwrap();
+    let mut o = configbot_optimizer::Optimizer::new(problem, settings, &[1.0, 1.5]).unwrap();
+    for t in &run.trials {
+        o.tell(outcome::observation(t)).unwrap();
+    }
+    run.optimizer = Some(o);
+    run.state = finish(&mut run, &env, &defs, &mut Vec::new());
+    assert_verifies_trial_as_measured(&run, 1);
+
+    let (mut failed, out) = verify(run, &env, &[30.0; 10]);
+    assert_eq!(reasons(&out), vec!["VerificationFailed", "BackingOff"]);
+    let told = failed.optimizer.as_ref().unwrap().observations();
+    assert_eq!(
+        told[1].constraints,
+        vec![30.0],
+        "trial 1 as its verification measured it"
+    );
+    assert_eq!(told[0].constraints, vec![40.0], "trial 0 as measured");
+    assert_eq!(
+        failed.trials[1].eval.constraints,
+        vec![40.0],
+        "the record stays"
+    );
+
+    let mut spent = failed.clone();
+    let mut out = Vec::new();
+    let next = finish(&mut failed, &env, &defs, &mut out);
+    assert_eq!(reasons(&out), vec!["SearchingOn"]);
+    assert!(
+        event_text(&out[0]).contains(
+            "trial 1 failed its verification with 3 of 5 trials left: the search goes on"
+        ),
+        "{out:?}"
+    );
+    assert_eq!(name(&next), "TrialApply");
+    let mut out = Vec::new();
+    let next = finish(&mut failed, &env, &defs, &mut out);
+    assert!(!reasons(&out).contains(&"SearchingOn"), "{out:?}");
+    assert_eq!(
+        next,
+        State::VerifyApply {
+            candidate: Candidate::Trial { index: 0 },
+            config: failed.trials[0].config.clone()
+        }
+    );
+
+    for det in [1.0, 2.0, 3.0] {
+        push_trial(&mut spent, &env, &[0.5, 1.5], det);
+    }
+    let mut out = Vec::new();
+    let next = finish(&mut spent, &env, &defs, &mut out);
+    assert!(!reasons(&out).contains(&"SearchingOn"), "{out:?}");
+    assert_eq!(name(&next), "VerifyApply", "the budget is spent");
 }
 
 /// The run's next step applies trial `index`'s config, as measured, to verify it.
