@@ -1033,6 +1033,8 @@ pub fn step(mut run: Run, input: Input, env: &Env<'_>) -> (Run, Vec<Output>) {
             // Measured on, or in a bursty run, a verification is judged by
             // its windows alone: a record without a miss is the stronger test.
             let by_windows = so_far.is_some() || run.bursty;
+            // Measured on so far, every window on target.
+            let measuring_on = so_far.is_some() && short && eval.satisfaction >= 1.0;
             if so_far.is_none()
                 && short
                 && holds(&eval, by_windows)
@@ -1068,11 +1070,7 @@ pub fn step(mut run: Run, input: Input, env: &Env<'_>) -> (Run, Vec<Output>) {
                     config,
                     so_far: Some(report),
                 }
-            } else if so_far.is_some()
-                && short
-                && eval.satisfaction >= 1.0
-                && (run.bursty || measure::short_of_bar(&defs, &report))
-            {
+            } else if measuring_on && (run.bursty || measure::short_of_bar(&defs, &report)) {
                 // Measuring on, every window on target so far: a bursty
                 // run's record is measured whole, a minute short of the bar
                 // until its windows clear the margin (`BAR_CHUNK_MS`).
@@ -1082,7 +1080,7 @@ pub fn step(mut run: Run, input: Input, env: &Env<'_>) -> (Run, Vec<Output>) {
                     so_far: Some(report),
                 }
             } else {
-                if so_far.is_some() && short && eval.satisfaction >= 1.0 {
+                if measuring_on {
                     out.push(normal(
                         Reason::NearBoundary,
                         format!(

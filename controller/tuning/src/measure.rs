@@ -441,7 +441,7 @@ pub fn evaluate(defs: &[MetricDef], report: &MeasureReport, s: Scalarization) ->
 /// least for an at-least target, the most for an at-most one; 0 with no
 /// window (as the robust value: a measurement without windows is judged
 /// infeasible by its emptiness, not by this value).
-fn worst_window(d: &MetricDef, values: &[f64]) -> f64 {
+pub fn worst_window(d: &MetricDef, values: &[f64]) -> f64 {
     if values.is_empty() {
         0.0
     } else if d.at_least {

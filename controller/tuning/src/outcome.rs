@@ -869,17 +869,16 @@ fn revise_failed_trial(
         .clone()
         .enumerate()
         .map(|(j, d)| {
-            let measured = [
+            let measured: Vec<f64> = [
                 trial.eval.constraints.get(j),
                 eval.constraints.get(j),
                 eval.worst.get(j),
-            ];
-            let worst = measured.into_iter().flatten().copied();
-            if d.at_least {
-                worst.fold(f64::INFINITY, f64::min)
-            } else {
-                worst.fold(f64::NEG_INFINITY, f64::max)
-            }
+            ]
+            .into_iter()
+            .flatten()
+            .copied()
+            .collect();
+            measure::worst_window(d, &measured)
         })
         .collect();
     if core.zip(&revised).all(|(d, &v)| d.holds(v)) {

@@ -378,20 +378,34 @@ pub(crate) fn next_trial(
             ));
             o.end_design();
         }
-        match o.ask() {
-            Ok(Proposal::Try(x)) => {
-                let config = run.knobs.to_config(&x);
-                let x = run.knobs.from_config(&config);
-                return drain_first(run, env, State::TrialApply { x, config });
-            }
-            Ok(Proposal::Stop(r)) => out.push(normal(
-                Reason::TuningStopped,
-                format!("optimizer stopped: {r:?}"),
-            )),
-            Err(e) => out.push(warning(Reason::OptimizerFailed, e.to_string())),
+        if let Some(next) = ask(run, env, out) {
+            return next;
         }
     }
     finish(run, env, defs, out)
+}
+
+/// The optimizer's next proposal as the run's next trial (after a drain),
+/// or `None` with an event saying why the search stopped.
+fn ask(run: &mut Run, env: &Env<'_>, out: &mut Vec<Output>) -> Option<State> {
+    match run.optimizer.as_mut()?.ask() {
+        Ok(Proposal::Try(x)) => {
+            let config = run.knobs.to_config(&x);
+            let x = run.knobs.from_config(&config);
+            Some(drain_first(run, env, State::TrialApply { x, config }))
+        }
+        Ok(Proposal::Stop(r)) => {
+            out.push(normal(
+                Reason::TuningStopped,
+                format!("optimizer stopped: {r:?}"),
+            ));
+            None
+        }
+        Err(e) => {
+            out.push(warning(Reason::OptimizerFailed, e.to_string()));
+            None
+        }
+    }
 }
 
 /// The next trial when a trial failed its verification since the search
@@ -412,32 +426,19 @@ fn search_on(run: &mut Run, env: &Env<'_>, out: &mut Vec<Output>) -> Option<Stat
     }
     run.searched_on = run.rejected.len();
     let failed = *run.rejected.last()?;
-    let proposal = run.optimizer.as_mut()?.ask();
-    match proposal {
-        Ok(Proposal::Try(x)) => {
-            out.push(normal(
-                Reason::SearchingOn,
-                format!(
-                    "trial {failed} failed its verification with {} of {max} trials left: the search goes on, its models told what the verification measured",
-                    max - run.trials.len()
-                ),
-            ));
-            let config = run.knobs.to_config(&x);
-            let x = run.knobs.from_config(&config);
-            Some(drain_first(run, env, State::TrialApply { x, config }))
-        }
-        Ok(Proposal::Stop(r)) => {
-            out.push(normal(
-                Reason::TuningStopped,
-                format!("optimizer stopped: {r:?}"),
-            ));
-            None
-        }
-        Err(e) => {
-            out.push(warning(Reason::OptimizerFailed, e.to_string()));
-            None
-        }
+    let mut asked = Vec::new();
+    let next = ask(run, env, &mut asked);
+    if next.is_some() {
+        out.push(normal(
+            Reason::SearchingOn,
+            format!(
+                "trial {failed} failed its verification with {} of {max} trials left: the search goes on, its models told what the verification measured",
+                max - run.trials.len()
+            ),
+        ));
     }
+    out.extend(asked);
+    next
 }
 
 /// `then` (applying a trial's config, or verifying a config of this run's
