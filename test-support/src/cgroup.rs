@@ -99,8 +99,11 @@ pub fn own_cpu_cgroup(cpu_mount: &Path) -> Option<PathBuf> {
 
 /// Kills every process (but this one) in the cgroups `dirs` and below and
 /// removes them, the deepest first, retrying every 20 ms for up to
-/// `timeout` (a killed process leaves its cgroup once reaped). `Ok` when
-/// none of them exists any more. For a subtree root in each CPU hierarchy.
+/// `timeout` (a killed process leaves its cgroup once reaped). This
+/// process's own threads there (an in-process agent's data plane, which
+/// has a cgroup of its own) move up to the parent of their tree's root.
+/// `Ok` when none of them exists any more. For a subtree root in each CPU
+/// hierarchy.
 pub fn remove_tree(dirs: &[PathBuf], timeout: Duration) -> Result<(), TimedOut> {
     let what = format!("cgroups {dirs:?} to empty and go");
     try_wait_until(&what, timeout, Duration::from_millis(20), || {
@@ -114,10 +117,25 @@ pub fn remove_tree(dirs: &[PathBuf], timeout: Duration) -> Result<(), TimedOut> 
                 for pid in procs(&cg) {
                     kill9(pid);
                 }
+                if let Some(parent) = dir.parent() {
+                    for tid in own_threads(&cg) {
+                        let _ = std::fs::write(parent.join("tasks"), tid.to_string());
+                    }
+                }
             }
         }
         gone
     })
+}
+
+/// The threads of this process in the v1 cgroup `dir`.
+fn own_threads(dir: &Path) -> Vec<u32> {
+    std::fs::read_to_string(dir.join("tasks"))
+        .unwrap_or_default()
+        .lines()
+        .filter_map(|l| l.trim().parse::<u32>().ok())
+        .filter(|t| Path::new("/proc/self/task").join(t.to_string()).exists())
+        .collect()
 }
 
 /// [`remove_tree`] of the cgroup `name` directly below each of `mounts`

@@ -30,8 +30,8 @@ use std::time::Duration;
 use configbot_api::graph::{EdgeId, Graph, GraphEvent};
 use configbot_api::measure::{MeasureReport, MeasureRequest};
 use configbot_api::policy::AppOf;
-use configbot_cgroups::CgroupBackend;
-use configbot_dataplane::DataPlane;
+use configbot_cgroups::{CgroupBackend, CpuWeight};
+use configbot_dataplane::{DataPlane, ThreadHook};
 use configbot_manifests::{ResourceConfig, RobotStack};
 use configbot_procmon::{MonitorConfig, MonitorHandle, Preference, ProcessMonitor};
 use prometheus::{GaugeVec, Opts, Registry, TextEncoder};
@@ -183,6 +183,26 @@ fn node_env(dp: Option<&dyn DataPlane>) -> Vec<(String, String)> {
     dp.map(DataPlane::node_env).unwrap_or_default()
 }
 
+/// What each data-plane thread runs as it starts: it moves into the
+/// agent's thread cgroup, at the largest weight (the data plane stamps the
+/// core metrics' messages as they arrive; see `configbot_cgroups::threads`).
+/// `None` where threads cannot have a cgroup of their own (v2) or it cannot
+/// be made: the threads then stay in the agent's cgroup.
+fn data_plane_threads(backend: &dyn CgroupBackend) -> Option<ThreadHook> {
+    match backend.agent_threads(CpuWeight::MAX) {
+        Ok(Some(place)) => Some(Arc::new(move || {
+            if let Err(e) = place.place_current_thread() {
+                tracing::warn!(error = %e, "a data-plane thread stays in the agent's cgroup");
+            }
+        })),
+        Ok(None) => None,
+        Err(e) => {
+            tracing::warn!(error = %e, "no cgroup for the data plane's threads");
+            None
+        }
+    }
+}
+
 impl NodeRuntime {
     /// Starts the data plane (so the master is up before nodes start), then
     /// the agent for `stack`, then the process monitor and the glue tasks.
@@ -195,7 +215,11 @@ impl NodeRuntime {
         let apps = Arc::new(RwLock::new(app_map(&stack)));
         let dp = match &opts.data_plane {
             None => None,
-            Some(o) => Some(backends::start(o, Arc::new(LiveApps(apps.clone())), &registry).await?),
+            Some(o) => {
+                let apps = Arc::new(LiveApps(apps.clone()));
+                let hook = data_plane_threads(backend.as_ref());
+                Some(backends::start(o, apps, &registry, hook).await?)
+            }
         };
         let stack = with_node_env(stack, &node_env(dp.as_deref()));
         let agent = Agent::start(backend, opts.settings, stack).await?;

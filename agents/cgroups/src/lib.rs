@@ -20,6 +20,7 @@ mod layout;
 mod limit;
 mod name;
 mod stats;
+mod threads;
 mod v1;
 mod v2;
 
@@ -32,5 +33,6 @@ pub use limit::{
 };
 pub use name::{NodeName, SubtreeRoot};
 pub use stats::{CpuStats, Pressure};
+pub use threads::{AGENT_THREADS_DIR, ThreadPlacement};
 pub use v1::V1Backend;
 pub use v2::V2Backend;

@@ -14,6 +14,7 @@ use crate::fsio::{create_dir, read_file, read_ids, read_number, remove_dir, writ
 use crate::limit::{CpuMax, CpuWeight};
 use crate::name::{NodeName, SubtreeRoot};
 use crate::stats::{CpuStats, apply_cpu_stat};
+use crate::threads::{self, ThreadPlacement};
 
 /// v1 backend over the `cpu` and `cpuacct` mounts (which may be one mount).
 #[derive(Debug, Clone)]
@@ -183,6 +184,7 @@ impl CgroupBackend for V1Backend {
 
     fn remove_root(&self) -> Result<()> {
         for d in self.dirs() {
+            threads::release_v1(d)?;
             remove_dir(d)?;
         }
         Ok(())
@@ -200,6 +202,10 @@ impl CgroupBackend for V1Backend {
 
     fn root_weight(&self) -> Result<CpuWeight> {
         read_shares(&self.cpu.join("cpu.shares"))
+    }
+
+    fn agent_threads(&self, weight: CpuWeight) -> Result<Option<ThreadPlacement>> {
+        ThreadPlacement::create_v1(&self.dirs(), weight).map(Some)
     }
 }
 

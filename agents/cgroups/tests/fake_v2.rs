@@ -236,6 +236,12 @@ impl CgroupBackend for FailSecondWrite {
     fn root_weight(&self) -> configbot_cgroups::Result<CpuWeight> {
         self.inner.root_weight()
     }
+    fn agent_threads(
+        &self,
+        w: CpuWeight,
+    ) -> configbot_cgroups::Result<Option<configbot_cgroups::ThreadPlacement>> {
+        self.inner.agent_threads(w)
+    }
 }
 
 /// Runs on hosts whose cgroup2 root offers the cpu controller; on this

@@ -256,3 +256,55 @@ fn the_subtree_root_weight_is_its_cpu_shares() {
     t.backend.set_root_weight(CpuWeight::DEFAULT).unwrap();
     assert_eq!(t.backend.root_weight().unwrap(), CpuWeight::DEFAULT);
 }
+
+/// The calling thread's id, from `/proc/thread-self` (`<pid>/task/<tid>`).
+fn own_tid() -> u32 {
+    let link = std::fs::read_link("/proc/thread-self").unwrap();
+    link.file_name().unwrap().to_str().unwrap().parse().unwrap()
+}
+
+#[test]
+fn an_agent_thread_gets_a_cgroup_of_its_own_and_leaves_it_with_the_subtree() {
+    let t = Tree::new();
+    let place = t
+        .backend
+        .agent_threads(CpuWeight::MAX)
+        .unwrap()
+        .expect("v1 gives single threads a cgroup");
+    let dir = t.cpu_root.join(configbot_cgroups::AGENT_THREADS_DIR);
+    let shares = std::fs::read_to_string(dir.join("cpu.shares")).unwrap();
+    assert_eq!(shares.trim(), CpuWeight::MAX.v1_shares().to_string());
+
+    let (placed_tx, placed_rx) = std::sync::mpsc::channel();
+    let (done_tx, done_rx) = std::sync::mpsc::channel::<()>();
+    let thread = std::thread::spawn(move || {
+        place.place_current_thread().unwrap();
+        placed_tx.send(own_tid()).unwrap();
+        done_rx.recv().unwrap();
+    });
+    let tid = placed_rx.recv().unwrap();
+    let tasks = |d: &std::path::Path| -> Vec<u32> {
+        std::fs::read_to_string(d.join("tasks"))
+            .unwrap()
+            .lines()
+            .map(|l| l.parse().unwrap())
+            .collect()
+    };
+    // That thread only: the process's other threads (this one) stay.
+    assert_eq!(tasks(&dir), vec![tid]);
+    assert!(!tasks(&dir).contains(&own_tid()));
+    // Not a node: listings and node teardown never see it.
+    assert!(t.backend.nodes().unwrap().is_empty());
+
+    // Removing the subtree while the thread still runs moves it out first.
+    t.backend.remove_root().unwrap();
+    assert!(!dir.exists() && !t.cpu_root.exists());
+    let parent = t.cpu_root.parent().unwrap();
+    assert!(
+        tasks(parent).contains(&tid),
+        "{tid} not back in {}",
+        parent.display()
+    );
+    done_tx.send(()).unwrap();
+    thread.join().unwrap();
+}

@@ -9,6 +9,7 @@
 //! adaptor selection policy is the pure [`configbot_api::policy`].
 
 use std::collections::BTreeMap;
+use std::sync::Arc;
 
 // The trait's vocabulary: the types its methods take and return, and what
 // those are made of.
@@ -33,8 +34,14 @@ pub enum DataPlaneError {
     },
 }
 
+/// What each of a backend's threads runs as it starts. A backend meters
+/// the core metrics, so it runs on threads of its own, and the agent gives
+/// them a cgroup of their own through this hook (`configbot-cgroups`'
+/// `ThreadPlacement`).
+pub type ThreadHook = Arc<dyn Fn() + Send + Sync>;
+
 /// A backend of the data plane. Methods are cheap and non-blocking: IO runs
-/// in the backend's own tasks.
+/// in the backend's own tasks, on the backend's own threads.
 pub trait DataPlane: Send + Sync {
     /// The current graph, with pids known so far.
     fn graph(&self) -> Graph;

@@ -7,7 +7,7 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use configbot_api::policy::{AppOf, PolicyConfig};
-use configbot_dataplane::DataPlane;
+use configbot_dataplane::{DataPlane, ThreadHook};
 use configbot_ros1::{Ros1Config, Ros1DataPlane, placement_from_apps};
 use prometheus::Registry;
 
@@ -43,11 +43,13 @@ pub struct DataPlaneOptions {
 type StartError = Box<dyn std::error::Error + Send + Sync>;
 
 /// Starts a backend: its options, the stack's apps as the adaptor placement
-/// reads them, and the registry its metrics go to.
+/// reads them, the registry its metrics go to and what each of its threads
+/// runs as it starts.
 type StartFn = for<'a> fn(
     &'a DataPlaneOptions,
     Arc<dyn AppOf + Send + Sync>,
     &'a Registry,
+    Option<ThreadHook>,
 ) -> BoxFuture<'a, std::result::Result<Arc<dyn DataPlane>, StartError>>;
 
 /// One backend the runtime can start.
@@ -72,6 +74,7 @@ pub(super) async fn start(
     opts: &DataPlaneOptions,
     apps: Arc<dyn AppOf + Send + Sync>,
     registry: &Registry,
+    on_thread_start: Option<ThreadHook>,
 ) -> Result<Arc<dyn DataPlane>> {
     let backend = BACKENDS
         .iter()
@@ -84,7 +87,7 @@ pub(super) async fn start(
                 .collect::<Vec<_>>()
                 .join(", "),
         })?;
-    (backend.start)(opts, apps, registry)
+    (backend.start)(opts, apps, registry, on_thread_start)
         .await
         .map_err(|source| Error::DataPlane {
             backend: backend.title,
@@ -97,6 +100,7 @@ fn start_ros1<'a>(
     opts: &'a DataPlaneOptions,
     apps: Arc<dyn AppOf + Send + Sync>,
     registry: &'a Registry,
+    on_thread_start: Option<ThreadHook>,
 ) -> BoxFuture<'a, std::result::Result<Arc<dyn DataPlane>, StartError>> {
     Box::pin(async move {
         let defaults = Ros1Config::default();
@@ -106,6 +110,7 @@ fn start_ros1<'a>(
             adaptor_bind_host: opts.adaptor_bind_host.clone(),
             refresh_period: opts.refresh_period.unwrap_or(defaults.refresh_period),
             placement: Some(placement_from_apps(apps, opts.policy.clone())),
+            on_thread_start,
             ..defaults
         };
         let dp = Ros1DataPlane::start(cfg, &opts.db_path, registry).await?;
