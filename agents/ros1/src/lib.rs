@@ -174,8 +174,23 @@ pub struct Ros1DataPlane {
     events: broadcast::Sender<GraphEvent>,
     tasks: Vec<JoinHandle<()>>,
     master_port: u16,
-    /// The threads everything above runs on; `None` only while dropping.
-    rt: Option<tokio::runtime::Runtime>,
+    /// The threads everything above runs on (`None` only inside
+    /// [`Ros1DataPlane::start`]); dropped last, after the tasks are aborted.
+    rt: Option<OwnRuntime>,
+}
+
+/// The data plane's runtime, shut down without blocking when dropped: the
+/// one dropping it may be another runtime's thread (the agent's), where a
+/// blocking shutdown panics.
+#[derive(Debug)]
+struct OwnRuntime(Option<tokio::runtime::Runtime>);
+
+impl Drop for OwnRuntime {
+    fn drop(&mut self) {
+        if let Some(rt) = self.0.take() {
+            rt.shutdown_background();
+        }
+    }
 }
 
 impl Drop for Ros1DataPlane {
@@ -194,10 +209,6 @@ impl Drop for Ros1DataPlane {
         }
         if let Ok(mut t) = self.core.taps.lock() {
             t.clear();
-        }
-        // Not a blocking shutdown: the caller may be a runtime's thread.
-        if let Some(rt) = self.rt.take() {
-            rt.shutdown_background();
         }
     }
 }
@@ -223,25 +234,15 @@ impl Ros1DataPlane {
         if let Some(hook) = config.on_thread_start.clone() {
             builder.on_thread_start(move || hook());
         }
-        let rt = builder.build().map_err(Ros1Error::Runtime)?;
+        let runtime = builder.build().map_err(Ros1Error::Runtime)?;
         let (db, registry) = (db_path.to_path_buf(), registry.clone());
-        let started = rt
-            .spawn(async move { Self::start_here(config, &db, &registry).await })
-            .await;
-        match started {
-            Ok(Ok(mut dp)) => {
-                dp.rt = Some(rt);
-                Ok(dp)
-            }
-            Ok(Err(e)) => {
-                rt.shutdown_background();
-                Err(e)
-            }
-            Err(_) => {
-                rt.shutdown_background();
-                Err(Ros1Error::Cancelled)
-            }
-        }
+        let started = runtime.spawn(async move { Self::start_here(config, &db, &registry).await });
+        // From here on, dropping (this future cancelled, or an error) does
+        // not block.
+        let rt = OwnRuntime(Some(runtime));
+        let mut dp = started.await.map_err(|_| Ros1Error::Cancelled)??;
+        dp.rt = Some(rt);
+        Ok(dp)
     }
 
     /// [`Self::start`] on the runtime this runs on (the data plane's).
@@ -336,7 +337,10 @@ impl Ros1DataPlane {
     /// Enters the data plane's runtime, so that what a call spawns (taps,
     /// relays, calls to nodes) runs on the data plane's threads.
     fn enter(&self) -> Option<tokio::runtime::EnterGuard<'_>> {
-        self.rt.as_ref().map(|rt| rt.enter())
+        self.rt
+            .as_ref()
+            .and_then(|rt| rt.0.as_ref())
+            .map(|rt| rt.enter())
     }
 
     /// The master URI nodes should use.
