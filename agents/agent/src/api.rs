@@ -1,7 +1,8 @@
 //! The agent's HTTP API (axum) and Prometheus endpoint.
 //!
-//! Access rules match the control plane: by default a Unix socket with mode
-//! 0600 (only root/the agent's user may connect); TCP only with a bearer token.
+//! Access: by default a Unix socket with mode 0600 (only root/the agent's
+//! user may connect); TCP only with a bearer token, over plain HTTP (the
+//! control plane's TCP is HTTPS).
 //! Bodies, request heads and idle connections are bounded by
 //! [`crate::limits`]: an oversized body is a 413, a slow one a 408.
 //!

@@ -117,7 +117,7 @@ impl ProcEventKind {
     }
 }
 
-/// The part of a process-monitor event the agent uses; the lead maps
+/// The part of a process-monitor event the agent uses; `runtime.rs` maps
 /// `configbot_procmon::ProcEvent` onto it field by field.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct ProcEvent {

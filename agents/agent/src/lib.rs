@@ -1,6 +1,10 @@
 //! ConfigBot node agent: runs and adopts ROS node processes inside per-node
 //! cgroups, applies CPU configs from the controller atomically, survives its
 //! own restarts, and serves an HTTP API with Prometheus metrics.
+//! [`runtime::NodeRuntime`] joins the agent, the process monitor and a data
+//! plane into the one object the controller drives, in process or through
+//! the API; [`contract`] states each API operation once, for the router and
+//! for [`client`], the remote agent's client.
 //!
 //! Pure decisions live in [`policy`] (restart), [`state`] (startup
 //! safety) and [`procfs`] parsers; `supervise` is the restart loop over a

@@ -1,5 +1,5 @@
 //! The agent's plain view of a robot stack: apps → nodes → `run` or `match`,
-//! plus the agent's own settings. The lead maps the RobotStack manifest onto these.
+//! plus the agent's own settings. `manifest.rs` maps the RobotStack manifest onto these.
 
 use std::collections::BTreeMap;
 use std::path::PathBuf;

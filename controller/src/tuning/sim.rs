@@ -1,4 +1,4 @@
-//! A deterministic simulated robot for tests and demos: ROS-like nodes with a
+//! A deterministic simulated robot for tests: ROS-like nodes with a
 //! CPU cost per message and per timer cycle, publish rates, per-node CPU
 //! limits, CFS-like sharing of N CPUs weighted by threads and cgroup CPU
 //! weight (water-filling), and

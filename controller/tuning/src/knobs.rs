@@ -50,7 +50,7 @@ pub struct KnobDef {
     pub max: f64,
     /// Lowering this knob only takes CPU or input from a non-core app (a
     /// non-core node's CPU, or an adaptor feeding a non-core subscriber), so it
-    /// cannot hurt a core service (see `machine::every_config_as_safe_as`).
+    /// cannot hurt a core service (see `search::every_config_as_safe_as`).
     #[serde(default)]
     pub restricts_non_core: bool,
     /// The objectives (non-core metrics) the knob's node works for: those
