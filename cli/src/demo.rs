@@ -76,9 +76,11 @@ pub struct DemoArgs {
     /// CPU weight of the robot's nodes together against this machine's other
     /// work (1–10000, cgroup v2 units; a service has 100). Unset: the
     /// kernel's default, as the stack was calibrated with. A high weight
-    /// shields the nodes from other work but also from this process, whose
-    /// adaptor relays and meters then fall behind (measured: the Basic-NAV
-    /// default read 55 % satisfaction at 6400 instead of 10 %).
+    /// shields the nodes from other work. On cgroup v1 the data plane's
+    /// threads (meters, adaptor relays) are in the subtree with them; on v2
+    /// they stay in this process's cgroup and fall behind (measured while
+    /// they were outside on v1 too: the Basic-NAV default read 55 %
+    /// satisfaction at 6400 instead of 10 %).
     #[arg(long, value_parser = clap::value_parser!(u32).range(1..=10_000))]
     subtree_cpu_weight: Option<u32>,
 }
