@@ -174,9 +174,9 @@ pub struct Ros1DataPlane {
     events: broadcast::Sender<GraphEvent>,
     tasks: Vec<JoinHandle<()>>,
     master_port: u16,
-    /// The threads everything above runs on (`None` only inside
+    /// The threads everything above runs on (none only inside
     /// [`Ros1DataPlane::start`]); dropped last, after the tasks are aborted.
-    rt: Option<OwnRuntime>,
+    rt: OwnRuntime,
 }
 
 /// The data plane's runtime, shut down without blocking when dropped: the
@@ -241,7 +241,7 @@ impl Ros1DataPlane {
         // not block.
         let rt = OwnRuntime(Some(runtime));
         let mut dp = started.await.map_err(|_| Ros1Error::Cancelled)??;
-        dp.rt = Some(rt);
+        dp.rt = rt;
         Ok(dp)
     }
 
@@ -330,17 +330,14 @@ impl Ros1DataPlane {
             events,
             tasks,
             master_port: master_addr.port(),
-            rt: None,
+            rt: OwnRuntime(None),
         })
     }
 
     /// Enters the data plane's runtime, so that what a call spawns (taps,
     /// relays, calls to nodes) runs on the data plane's threads.
     fn enter(&self) -> Option<tokio::runtime::EnterGuard<'_>> {
-        self.rt
-            .as_ref()
-            .and_then(|rt| rt.0.as_ref())
-            .map(|rt| rt.enter())
+        self.rt.0.as_ref().map(|rt| rt.enter())
     }
 
     /// The master URI nodes should use.
