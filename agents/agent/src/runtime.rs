@@ -30,8 +30,8 @@ use std::time::Duration;
 use configbot_api::graph::{EdgeId, Graph, GraphEvent};
 use configbot_api::measure::{MeasureReport, MeasureRequest};
 use configbot_api::policy::AppOf;
-use configbot_cgroups::{CgroupBackend, CpuWeight};
-use configbot_dataplane::{DataPlane, ThreadHook};
+use configbot_cgroups::{AgentThreads, CgroupBackend};
+use configbot_dataplane::{DataPlane, ThreadHook, ThreadHooks};
 use configbot_manifests::{ResourceConfig, RobotStack};
 use configbot_procmon::{MonitorConfig, MonitorHandle, Preference, ProcessMonitor};
 use prometheus::{GaugeVec, Opts, Registry, TextEncoder};
@@ -183,23 +183,29 @@ fn node_env(dp: Option<&dyn DataPlane>) -> Vec<(String, String)> {
     dp.map(DataPlane::node_env).unwrap_or_default()
 }
 
-/// What each data-plane thread runs as it starts: it moves into the
-/// agent's thread cgroup, at the largest weight (the data plane stamps the
-/// core metrics' messages as they arrive; see `configbot_cgroups::threads`).
-/// `None` where threads cannot have a cgroup of their own (v2) or it cannot
-/// be made: the threads then stay in the agent's cgroup.
-fn data_plane_threads(backend: &dyn CgroupBackend) -> Option<ThreadHook> {
-    match backend.agent_threads(CpuWeight::MAX) {
-        Ok(Some(place)) => Some(Arc::new(move || {
-            if let Err(e) = place.place_current_thread() {
-                tracing::warn!(error = %e, "a data-plane thread stays in the agent's cgroup");
+/// What each data-plane thread runs as it starts, by its job: it moves
+/// into the agent's cgroup for that job (the meters' at the largest weight,
+/// the relays' at a node's; see `configbot_cgroups::threads`). A job's hook
+/// is `None` where threads cannot have a cgroup of their own (v2) or it
+/// cannot be made: its threads then stay in the agent's cgroup.
+fn data_plane_threads(backend: &dyn CgroupBackend) -> ThreadHooks {
+    let hook = |group: AgentThreads| -> Option<ThreadHook> {
+        match backend.agent_threads(group) {
+            Ok(Some(place)) => Some(Arc::new(move || {
+                if let Err(e) = place.place_current_thread() {
+                    tracing::warn!(error = %e, ?group, "a data-plane thread stays in the agent's cgroup");
+                }
+            })),
+            Ok(None) => None,
+            Err(e) => {
+                tracing::warn!(error = %e, ?group, "no cgroup for the data plane's threads");
+                None
             }
-        })),
-        Ok(None) => None,
-        Err(e) => {
-            tracing::warn!(error = %e, "no cgroup for the data plane's threads");
-            None
         }
+    };
+    ThreadHooks {
+        metering: hook(AgentThreads::Metering),
+        relaying: hook(AgentThreads::Relaying),
     }
 }
 

@@ -9,7 +9,7 @@ use crate::layout::Layout;
 use crate::limit::{CpuMax, CpuWeight};
 use crate::name::{NodeName, SubtreeRoot};
 use crate::stats::CpuStats;
-use crate::threads::ThreadPlacement;
+use crate::threads::{AgentThreads, ThreadPlacement};
 use crate::{V1Backend, V2Backend};
 
 /// Which backend implementation is in use.
@@ -66,10 +66,10 @@ pub trait CgroupBackend: Debug + Send + Sync {
     fn set_root_weight(&self, weight: CpuWeight) -> Result<()>;
     /// The subtree root's CPU weight.
     fn root_weight(&self) -> Result<CpuWeight>;
-    /// Creates the cgroup of the agent's own latency-critical threads
-    /// (see [`crate::threads`]) at `weight`; `None` where single threads
-    /// cannot have a cgroup of their own (v2).
-    fn agent_threads(&self, weight: CpuWeight) -> Result<Option<ThreadPlacement>>;
+    /// Creates the cgroup of one group of the agent's own threads (see
+    /// [`crate::threads`]); `None` where single threads cannot have a
+    /// cgroup of their own (v2).
+    fn agent_threads(&self, group: AgentThreads) -> Result<Option<ThreadPlacement>>;
 }
 
 /// Picks the backend for a layout: the v1 `cpu` hierarchy when it exists

@@ -33,6 +33,6 @@ pub use limit::{
 };
 pub use name::{NodeName, SubtreeRoot};
 pub use stats::{CpuStats, Pressure};
-pub use threads::{AGENT_THREADS_DIR, ThreadPlacement};
+pub use threads::{AgentThreads, ThreadPlacement};
 pub use v1::V1Backend;
 pub use v2::V2Backend;

@@ -14,7 +14,7 @@ use crate::fsio::{create_dir, read_file, read_ids, read_number, remove_dir, writ
 use crate::limit::{CpuMax, CpuWeight};
 use crate::name::{NodeName, SubtreeRoot};
 use crate::stats::{CpuStats, apply_cpu_stat};
-use crate::threads::{self, ThreadPlacement};
+use crate::threads::{self, AgentThreads, ThreadPlacement};
 
 /// v1 backend over the `cpu` and `cpuacct` mounts (which may be one mount).
 #[derive(Debug, Clone)]
@@ -204,8 +204,8 @@ impl CgroupBackend for V1Backend {
         read_shares(&self.cpu.join("cpu.shares"))
     }
 
-    fn agent_threads(&self, weight: CpuWeight) -> Result<Option<ThreadPlacement>> {
-        ThreadPlacement::create_v1(&self.dirs(), weight).map(Some)
+    fn agent_threads(&self, group: AgentThreads) -> Result<Option<ThreadPlacement>> {
+        ThreadPlacement::create_v1(&self.dirs(), group).map(Some)
     }
 }
 

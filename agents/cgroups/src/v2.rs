@@ -8,7 +8,7 @@ use crate::fsio::{create_dir, read_file, read_ids, read_number, remove_dir, writ
 use crate::limit::{CpuMax, CpuWeight};
 use crate::name::{NodeName, SubtreeRoot};
 use crate::stats::{CpuStats, apply_cpu_stat, parse_pressure};
-use crate::threads::ThreadPlacement;
+use crate::threads::{AgentThreads, ThreadPlacement};
 use crate::v1::list_nodes;
 
 /// v2 backend over the cgroup2 mount.
@@ -143,7 +143,7 @@ impl CgroupBackend for V2Backend {
         read_weight(&self.root.join("cpu.weight"))
     }
 
-    fn agent_threads(&self, _weight: CpuWeight) -> Result<Option<ThreadPlacement>> {
+    fn agent_threads(&self, _group: AgentThreads) -> Result<Option<ThreadPlacement>> {
         Ok(None)
     }
 }

@@ -238,9 +238,9 @@ impl CgroupBackend for FailSecondWrite {
     }
     fn agent_threads(
         &self,
-        w: CpuWeight,
+        group: configbot_cgroups::AgentThreads,
     ) -> configbot_cgroups::Result<Option<configbot_cgroups::ThreadPlacement>> {
-        self.inner.agent_threads(w)
+        self.inner.agent_threads(group)
     }
 }
 

@@ -264,25 +264,9 @@ fn own_tid() -> u32 {
 }
 
 #[test]
-fn an_agent_thread_gets_a_cgroup_of_its_own_and_leaves_it_with_the_subtree() {
+fn each_group_of_agent_threads_gets_a_cgroup_of_its_own_and_leaves_it_with_the_subtree() {
+    use configbot_cgroups::AgentThreads;
     let t = Tree::new();
-    let place = t
-        .backend
-        .agent_threads(CpuWeight::MAX)
-        .unwrap()
-        .expect("v1 gives single threads a cgroup");
-    let dir = t.cpu_root.join(configbot_cgroups::AGENT_THREADS_DIR);
-    let shares = std::fs::read_to_string(dir.join("cpu.shares")).unwrap();
-    assert_eq!(shares.trim(), CpuWeight::MAX.v1_shares().to_string());
-
-    let (placed_tx, placed_rx) = std::sync::mpsc::channel();
-    let (done_tx, done_rx) = std::sync::mpsc::channel::<()>();
-    let thread = std::thread::spawn(move || {
-        place.place_current_thread().unwrap();
-        placed_tx.send(own_tid()).unwrap();
-        done_rx.recv().unwrap();
-    });
-    let tid = placed_rx.recv().unwrap();
     let tasks = |d: &std::path::Path| -> Vec<u32> {
         std::fs::read_to_string(d.join("tasks"))
             .unwrap()
@@ -290,21 +274,54 @@ fn an_agent_thread_gets_a_cgroup_of_its_own_and_leaves_it_with_the_subtree() {
             .map(|l| l.parse().unwrap())
             .collect()
     };
-    // That thread only: the process's other threads (this one) stay.
-    assert_eq!(tasks(&dir), vec![tid]);
-    assert!(!tasks(&dir).contains(&own_tid()));
-    // Not a node: listings and node teardown never see it.
+    let mut placed = Vec::new();
+    let (done_tx, done_rx) = std::sync::mpsc::channel::<()>();
+    let done_rx = std::sync::Arc::new(std::sync::Mutex::new(done_rx));
+    for group in AgentThreads::ALL {
+        let place = t
+            .backend
+            .agent_threads(group)
+            .unwrap()
+            .expect("v1 gives single threads a cgroup");
+        let dir = t.cpu_root.join(group.dir_name());
+        let shares = std::fs::read_to_string(dir.join("cpu.shares")).unwrap();
+        assert_eq!(shares.trim(), group.weight().v1_shares().to_string());
+        let (placed_tx, placed_rx) = std::sync::mpsc::channel();
+        let done = done_rx.clone();
+        let thread = std::thread::spawn(move || {
+            place.place_current_thread().unwrap();
+            placed_tx.send(own_tid()).unwrap();
+            // Stays until told: the subtree is removed while it runs.
+            let _ = done.lock().unwrap().recv();
+        });
+        let tid = placed_rx.recv().unwrap();
+        // That thread only: the process's other threads (this one) stay.
+        assert_eq!(tasks(&dir), vec![tid], "{group:?}");
+        assert!(!tasks(&dir).contains(&own_tid()));
+        placed.push((dir, tid, thread));
+    }
+    assert_ne!(
+        AgentThreads::Metering.weight(),
+        AgentThreads::Relaying.weight(),
+        "the meters come before the relays"
+    );
+    // Not nodes: listings and node teardown never see them.
     assert!(t.backend.nodes().unwrap().is_empty());
 
-    // Removing the subtree while the thread still runs moves it out first.
+    // Removing the subtree while the threads still run moves them out first.
     t.backend.remove_root().unwrap();
-    assert!(!dir.exists() && !t.cpu_root.exists());
+    assert!(!t.cpu_root.exists());
     let parent = t.cpu_root.parent().unwrap();
-    assert!(
-        tasks(parent).contains(&tid),
-        "{tid} not back in {}",
-        parent.display()
-    );
-    done_tx.send(()).unwrap();
-    thread.join().unwrap();
+    for (dir, tid, _) in &placed {
+        assert!(!dir.exists());
+        assert!(
+            tasks(parent).contains(tid),
+            "{tid} not back in {}",
+            parent.display()
+        );
+    }
+    for (_, _, thread) in placed {
+        done_tx.send(()).unwrap();
+        thread.join().unwrap();
+    }
 }

@@ -34,11 +34,32 @@ pub enum DataPlaneError {
     },
 }
 
-/// What each of a backend's threads runs as it starts. A backend meters
-/// the core metrics, so it runs on threads of its own, and the agent gives
-/// them a cgroup of their own through this hook (`configbot-cgroups`'
+/// What a backend's thread runs as it starts. A backend meters the
+/// metrics, so it runs on threads of its own, and the agent gives them a
+/// cgroup of their own through such a hook (`configbot-cgroups`'
 /// `ThreadPlacement`).
 pub type ThreadHook = Arc<dyn Fn() + Send + Sync>;
+
+/// The hooks of a backend's two kinds of threads, by their job: the ones
+/// that stamp messages as they arrive (meters, and the backend's own
+/// servers) and the ones that copy messages for adapted subscribers
+/// (relays). The agent gives the first the largest CPU weight and the
+/// second a node's (`configbot-cgroups`' `AgentThreads`). `None`: the
+/// threads stay where they start.
+#[derive(Clone, Default)]
+pub struct ThreadHooks {
+    pub metering: Option<ThreadHook>,
+    pub relaying: Option<ThreadHook>,
+}
+
+impl std::fmt::Debug for ThreadHooks {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("ThreadHooks")
+            .field("metering", &self.metering.is_some())
+            .field("relaying", &self.relaying.is_some())
+            .finish()
+    }
+}
 
 /// A backend of the data plane. Methods are cheap and non-blocking: IO runs
 /// in the backend's own tasks, on the backend's own threads.

@@ -273,16 +273,30 @@ impl FrameSink for EdgeRelay {
 /// its topic's tap.
 pub type Relays = Arc<Mutex<BTreeMap<EdgeId, Arc<EdgeRelay>>>>;
 
-/// Accepts subscriber connections on the adaptor's TCPROS port.
-pub async fn serve_tcpros(listener: TcpListener, relays: Relays, timeout: Duration) {
+/// Accepts subscriber connections on the adaptor's TCPROS port; each
+/// connection's writes run on `rt` (the relaying threads).
+pub async fn serve_tcpros(
+    listener: TcpListener,
+    relays: Relays,
+    timeout: Duration,
+    rt: tokio::runtime::Handle,
+) {
     loop {
-        let Ok((mut stream, addr)) = listener.accept().await else {
+        let Ok((stream, addr)) = listener.accept().await else {
             tokio::time::sleep(Duration::from_millis(50)).await;
             continue;
         };
         let _ = stream.set_nodelay(true);
+        // Registered with `rt`'s IO driver from here on, so the relaying
+        // threads, not the accepting ones, wake for its writes.
+        let Ok(stream) = stream.into_std() else {
+            continue;
+        };
         let relays = relays.clone();
-        tokio::spawn(async move {
+        rt.spawn(async move {
+            let Ok(mut stream) = tokio::net::TcpStream::from_std(stream) else {
+                return;
+            };
             let peer = addr.to_string();
             let read = tokio::time::timeout(
                 TCPROS_HEADER_TIMEOUT,

@@ -43,6 +43,11 @@ pub(crate) struct Core {
     pub meters: Mutex<BTreeMap<String, Arc<Meter>>>,
     /// One per topic that a meter or a relay reads, by topic.
     pub taps: Mutex<BTreeMap<String, Arc<Tap>>>,
+    /// The runtime of the metering threads (the master, the meters and the
+    /// taps they read) and of the relaying ones (taps that feed only
+    /// relays, and the relays' writes to their subscribers).
+    pub metering: tokio::runtime::Handle,
+    pub relaying: tokio::runtime::Handle,
     pub meter_window_s: f64,
     pub wake: Notify,
     pub timeout: Duration,
@@ -116,7 +121,7 @@ impl Core {
         match setting {
             Some(s) if !apis.is_empty() => {
                 self.ensure_relay(&id, s);
-                self.tap(topic).set_publishers(&apis, &msg_type);
+                self.tap(topic, false).set_publishers(&apis, &msg_type);
                 vec![self.adaptor_uri.clone()]
             }
             _ => apis,
@@ -134,7 +139,7 @@ impl Core {
             EdgeRelay::new(id.clone(), s, self.metrics.clone())
         });
         if created {
-            self.tap(&id.topic).add(&relay_key(id), edge.clone());
+            self.tap(&id.topic, false).add(&relay_key(id), edge.clone());
         }
         edge
     }
@@ -152,14 +157,23 @@ impl Core {
     }
 
     /// The tap of `topic`, created (and pointed at the topic's publishers)
-    /// when nothing read the topic yet.
-    fn tap(&self, topic: &str) -> Arc<Tap> {
+    /// when nothing read the topic yet; for a meter (`metered`) its
+    /// connections run on the metering threads, else where they are (the
+    /// relaying threads for a new tap).
+    fn tap(&self, topic: &str, metered: bool) -> Arc<Tap> {
+        let rt = if metered {
+            &self.metering
+        } else {
+            &self.relaying
+        };
         let (tap, created) = get_or_make(&self.taps, &topic.to_string(), || {
-            Tap::new(topic, self.timeout)
+            Tap::new(topic, self.timeout, rt.clone(), metered)
         });
         if created {
             let (apis, ty) = self.publishers_of(topic);
             tap.set_publishers(&apis, &ty);
+        } else if metered {
+            tap.meter_on(self.metering.clone());
         }
         tap
     }
@@ -331,7 +345,7 @@ impl Core {
             Meter::new(self.meter_window_s)
         });
         if created {
-            self.tap(topic).add(METER_KEY, m.reader());
+            self.tap(topic, true).add(METER_KEY, m.reader());
         }
         m
     }

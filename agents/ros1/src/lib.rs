@@ -3,12 +3,17 @@
 //! TCPROS topic meters and transparent per-subscriber rate adaptors, behind
 //! [`configbot_dataplane::DataPlane`]. Entry point: [`Ros1DataPlane::start`].
 //!
-//! The data plane runs on threads of its own (at most
-//! [`DATA_PLANE_THREADS`], named `configbot-ros1`), not on its caller's
-//! runtime, and each runs [`Ros1Config::on_thread_start`] as it starts (the
-//! agent moves them into a cgroup of their own beside the node cgroups): a
-//! meter stamps each message as it arrives, so neither the caller's work nor
-//! a busy robot may hold a message back. Measured on real-two-paths (2-core
+//! The data plane runs on threads of its own, not on its caller's runtime,
+//! in two runtimes by job (each at most [`DATA_PLANE_THREADS`] threads):
+//! `configbot-ros1` runs the master, the servers, the meters and the taps
+//! they read; `configbot-relay` runs the taps that feed only relays and the
+//! relays' writes to adapted subscribers. Each thread runs its job's hook
+//! of [`Ros1Config::threads`] as it starts (the agent moves the first into
+//! a cgroup at the largest weight beside the node cgroups, the second into
+//! one at a node's weight): a meter stamps each message as it arrives, so
+//! neither the caller's work nor a busy robot may hold a message back,
+//! while copying a camera's images to a non-core subscriber waits its turn
+//! like the nodes' own work. Measured on real-two-paths (2-core
 //! VM, 2026-11-27, 240 s after tuning, with an independent rospy subscriber
 //! of the core topic in a cgroup of its own): with the data plane on the
 //! agent's runtime outside the robot's subtree, the meter read 4 windows at
@@ -39,7 +44,7 @@ use std::time::Duration;
 use configbot_api::policy::{AppOf, PolicyConfig};
 use configbot_dataplane::{
     AdaptorSetting, DataPlane, DataPlaneError, EdgeCounters, EdgeId, Graph, GraphEvent, NodeInfo,
-    ThreadHook, TopicInfo, TopicStats,
+    ThreadHooks, TopicInfo, TopicStats,
 };
 use tokio::sync::{Notify, broadcast};
 use tokio::task::JoinHandle;
@@ -71,7 +76,8 @@ pub enum Ros1Error {
     Cancelled,
 }
 
-/// Worker threads of the data plane's runtime (at most the machine's CPUs).
+/// Worker threads of each of the data plane's runtimes (at most the
+/// machine's CPUs).
 pub const DATA_PLANE_THREADS: usize = 2;
 
 /// Where the master listens unless told otherwise: every interface, as
@@ -108,9 +114,9 @@ pub struct Ros1Config {
     /// Which edges get a pass-through adaptor when their subscriber
     /// registers; `None` = only edges set through `set_adaptor`.
     pub placement: Option<Placement>,
-    /// Run by each of the data plane's threads as it starts (the agent
-    /// moves them into a cgroup of their own).
-    pub on_thread_start: Option<ThreadHook>,
+    /// Run by each of the data plane's threads as it starts, by its job
+    /// (the agent moves them into cgroups of their own).
+    pub threads: ThreadHooks,
 }
 
 impl std::fmt::Debug for Ros1Config {
@@ -121,7 +127,7 @@ impl std::fmt::Debug for Ros1Config {
             .field("adaptor_bind_host", &self.adaptor_bind_host)
             .field("refresh_period", &self.refresh_period)
             .field("placement", &self.placement.is_some())
-            .field("on_thread_start", &self.on_thread_start.is_some())
+            .field("threads", &self.threads)
             .finish_non_exhaustive()
     }
 }
@@ -139,7 +145,7 @@ impl Default for Ros1Config {
             call_timeout: Duration::from_secs(3),
             meter_window: Duration::from_secs(10),
             placement: None,
-            on_thread_start: None,
+            threads: ThreadHooks::default(),
         }
     }
 }
@@ -174,9 +180,10 @@ pub struct Ros1DataPlane {
     events: broadcast::Sender<GraphEvent>,
     tasks: Vec<JoinHandle<()>>,
     master_port: u16,
-    /// The threads everything above runs on (none only inside
+    /// The threads everything above runs on, by job (none only inside
     /// [`Ros1DataPlane::start`]); dropped last, after the tasks are aborted.
     rt: OwnRuntime,
+    relay_rt: OwnRuntime,
 }
 
 /// The data plane's runtime, shut down without blocking when dropped: the
@@ -185,12 +192,40 @@ pub struct Ros1DataPlane {
 #[derive(Debug)]
 struct OwnRuntime(Option<tokio::runtime::Runtime>);
 
+impl OwnRuntime {
+    /// Owns `rt`; its handle, to spawn on it.
+    fn new(rt: tokio::runtime::Runtime) -> (Self, tokio::runtime::Handle) {
+        let handle = rt.handle().clone();
+        (Self(Some(rt)), handle)
+    }
+}
+
 impl Drop for OwnRuntime {
     fn drop(&mut self) {
         if let Some(rt) = self.0.take() {
             rt.shutdown_background();
         }
     }
+}
+
+/// One of the data plane's runtimes: threads named `name`, each running
+/// `hook` as it starts.
+fn runtime(
+    name: &str,
+    hook: Option<configbot_dataplane::ThreadHook>,
+) -> Result<tokio::runtime::Runtime, Ros1Error> {
+    let threads = std::thread::available_parallelism()
+        .map_or(1, |n| n.get())
+        .min(DATA_PLANE_THREADS);
+    let mut builder = tokio::runtime::Builder::new_multi_thread();
+    builder
+        .worker_threads(threads)
+        .thread_name(name)
+        .enable_all();
+    if let Some(hook) = hook {
+        builder.on_thread_start(move || hook());
+    }
+    builder.build().map_err(Ros1Error::Runtime)
 }
 
 impl Drop for Ros1DataPlane {
@@ -223,25 +258,18 @@ impl Ros1DataPlane {
         db_path: &Path,
         registry: &prometheus::Registry,
     ) -> Result<Self, Ros1Error> {
-        let threads = std::thread::available_parallelism()
-            .map_or(1, |n| n.get())
-            .min(DATA_PLANE_THREADS);
-        let mut builder = tokio::runtime::Builder::new_multi_thread();
-        builder
-            .worker_threads(threads)
-            .thread_name("configbot-ros1")
-            .enable_all();
-        if let Some(hook) = config.on_thread_start.clone() {
-            builder.on_thread_start(move || hook());
-        }
-        let runtime = builder.build().map_err(Ros1Error::Runtime)?;
+        // Owned at once: dropping a runtime (an error below, or this future
+        // cancelled) must not block.
+        let (metering, on_metering) =
+            OwnRuntime::new(runtime("configbot-ros1", config.threads.metering.clone())?);
+        let (relaying, on_relaying) =
+            OwnRuntime::new(runtime("configbot-relay", config.threads.relaying.clone())?);
         let (db, registry) = (db_path.to_path_buf(), registry.clone());
-        let started = runtime.spawn(async move { Self::start_here(config, &db, &registry).await });
-        // From here on, dropping (this future cancelled, or an error) does
-        // not block.
-        let rt = OwnRuntime(Some(runtime));
+        let started = on_metering
+            .spawn(async move { Self::start_here(config, &db, &registry, on_relaying).await });
         let mut dp = started.await.map_err(|_| Ros1Error::Cancelled)??;
-        dp.rt = rt;
+        dp.rt = metering;
+        dp.relay_rt = relaying;
         Ok(dp)
     }
 
@@ -250,6 +278,7 @@ impl Ros1DataPlane {
         config: Ros1Config,
         db_path: &Path,
         registry: &prometheus::Registry,
+        relaying: tokio::runtime::Handle,
     ) -> Result<Self, Ros1Error> {
         let (_, port, _) = http::parse_uri(&config.master_uri)
             .ok_or_else(|| Ros1Error::BadMasterUri(config.master_uri.clone()))?;
@@ -290,6 +319,8 @@ impl Ros1DataPlane {
             metrics,
             meters: Mutex::new(BTreeMap::new()),
             taps: Mutex::new(BTreeMap::new()),
+            metering: tokio::runtime::Handle::current(),
+            relaying: relaying.clone(),
             meter_window_s: config.meter_window.as_secs_f64(),
             wake: Notify::new(),
             timeout: config.call_timeout,
@@ -313,6 +344,7 @@ impl Ros1DataPlane {
                 tcp_l,
                 core.relays.clone(),
                 config.call_timeout,
+                relaying,
             )),
         ];
         let pids = Arc::new(Mutex::new(BTreeMap::new()));
@@ -331,6 +363,7 @@ impl Ros1DataPlane {
             tasks,
             master_port: master_addr.port(),
             rt: OwnRuntime(None),
+            relay_rt: OwnRuntime(None),
         })
     }
 

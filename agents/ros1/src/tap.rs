@@ -11,8 +11,11 @@
 //! over loopback that nothing used.
 
 use std::collections::BTreeMap;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
+
+use tokio::runtime::Handle;
 
 use crate::core::lock;
 use crate::tcpros::Header;
@@ -25,6 +28,9 @@ pub const TAP_CALLER_ID: &str = "/configbot/tap";
 pub struct Tap {
     upstream: UpstreamSet,
     readers: Arc<Readers>,
+    /// Whether a meter reads it: its connections then run on the metering
+    /// threads (a meter stamps each message as it is read).
+    metered: AtomicBool,
 }
 
 impl std::fmt::Debug for Tap {
@@ -37,10 +43,25 @@ impl std::fmt::Debug for Tap {
 }
 
 impl Tap {
-    pub fn new(topic: &str, timeout: Duration) -> Self {
+    /// A tap of `topic` whose connections run on `rt`; `metered` says
+    /// whether `rt` is the metering threads' runtime.
+    pub fn new(topic: &str, timeout: Duration, rt: Handle, metered: bool) -> Self {
         let readers = Arc::new(Readers::default());
-        let upstream = UpstreamSet::new(TAP_CALLER_ID, topic, readers.clone(), timeout);
-        Self { upstream, readers }
+        let upstream = UpstreamSet::new(TAP_CALLER_ID, topic, readers.clone(), timeout, rt);
+        Self {
+            upstream,
+            readers,
+            metered: AtomicBool::new(metered),
+        }
+    }
+
+    /// Moves the connections to the metering threads' runtime `rt` unless
+    /// they run there already (a meter joins a tap that fed only relays:
+    /// its relays see a reconnect).
+    pub fn meter_on(&self, rt: Handle) {
+        if !self.metered.swap(true, Ordering::SeqCst) {
+            self.upstream.move_to(rt);
+        }
     }
 
     /// Connects to new publishers in `apis` and drops the ones gone.
@@ -192,9 +213,17 @@ mod tests {
         );
     }
 
+    /// A runtime for taps whose connections are never made.
+    fn idle_rt() -> tokio::runtime::Runtime {
+        tokio::runtime::Builder::new_current_thread()
+            .build()
+            .unwrap()
+    }
+
     #[test]
     fn removing_the_last_reader_says_so() {
-        let t = Tap::new("/t", Duration::from_secs(1));
+        let rt = idle_rt();
+        let t = Tap::new("/t", Duration::from_secs(1), rt.handle().clone(), false);
         let (meter, relay): (Arc<dyn FrameSink>, Arc<dyn FrameSink>) =
             (Arc::new(Log::default()), Arc::new(Log::default()));
         t.add("meter", meter.clone());
@@ -205,7 +234,8 @@ mod tests {
 
     #[test]
     fn a_replaced_reader_leaving_late_keeps_its_successor() {
-        let t = Tap::new("/t", Duration::from_secs(1));
+        let rt = idle_rt();
+        let t = Tap::new("/t", Duration::from_secs(1), rt.handle().clone(), false);
         let (old, new): (Arc<dyn FrameSink>, Arc<dyn FrameSink>) =
             (Arc::new(Log::default()), Arc::new(Log::default()));
         t.add("adaptor/s", old.clone());

@@ -1,12 +1,12 @@
-//! The data plane runs on threads of its own: each runs the start hook,
-//! and the master keeps answering while the runtime that started it is not
+//! The data plane runs on threads of its own: each runs its job's start
+//! hook (metering or relaying), and the master keeps answering while the runtime that started it is not
 //! running at all (a caller busy with blocking work). Needs no ROS install.
 
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
-use configbot_dataplane::DataPlane;
+use configbot_dataplane::{DataPlane, ThreadHook, ThreadHooks};
 use configbot_ros1::xmlrpc::Value;
 use configbot_ros1::{DATA_PLANE_THREADS, Ros1Config, Ros1DataPlane, http};
 use configbot_test_support::free_port;
@@ -14,19 +14,29 @@ use configbot_test_support::free_port;
 #[test]
 fn the_master_answers_on_the_data_planes_threads_while_its_callers_runtime_stands_still() {
     let dir = tempfile::tempdir().unwrap();
-    let started = Arc::new(AtomicUsize::new(0));
-    let names = Arc::new(Mutex::new(Vec::new()));
-    let (s, n) = (started.clone(), names.clone());
+    // Per job: how many threads ran its hook, and their names.
+    let hook = || {
+        let started = Arc::new(AtomicUsize::new(0));
+        let names = Arc::new(Mutex::new(Vec::new()));
+        let (s, n) = (started.clone(), names.clone());
+        let hook: ThreadHook = Arc::new(move || {
+            s.fetch_add(1, Ordering::SeqCst);
+            let name = std::thread::current().name().map(String::from);
+            n.lock().unwrap().push(name);
+        });
+        (started, names, hook)
+    };
+    let (metering, metering_names, metering_hook) = hook();
+    let (relaying, relaying_names, relaying_hook) = hook();
     let cfg = Ros1Config {
         master_uri: format!("http://127.0.0.1:{}/", free_port()),
         bind_host: "127.0.0.1".into(),
         advertise_host: "127.0.0.1".into(),
         refresh_period: Duration::from_secs(60),
-        on_thread_start: Some(Arc::new(move || {
-            s.fetch_add(1, Ordering::SeqCst);
-            let name = std::thread::current().name().map(String::from);
-            n.lock().unwrap().push(name);
-        })),
+        threads: ThreadHooks {
+            metering: Some(metering_hook),
+            relaying: Some(relaying_hook),
+        },
         ..Ros1Config::default()
     };
     let master = cfg.master_uri.clone();
@@ -43,19 +53,21 @@ fn the_master_answers_on_the_data_planes_threads_while_its_callers_runtime_stand
             &prometheus::Registry::new(),
         ))
         .unwrap();
-    let workers = started.load(Ordering::SeqCst);
-    assert!(
-        (1..=DATA_PLANE_THREADS).contains(&workers),
-        "{workers} threads ran the hook"
-    );
-    assert!(
-        names
-            .lock()
-            .unwrap()
-            .iter()
-            .all(|n| n.as_deref() == Some("configbot-ros1")),
-        "{names:?}"
-    );
+    for (job, started, names, want) in [
+        ("metering", &metering, &metering_names, "configbot-ros1"),
+        ("relaying", &relaying, &relaying_names, "configbot-relay"),
+    ] {
+        let workers = started.load(Ordering::SeqCst);
+        assert!(
+            (1..=DATA_PLANE_THREADS).contains(&workers),
+            "{workers} {job} threads ran the hook"
+        );
+        let names = names.lock().unwrap();
+        assert!(
+            names.iter().all(|n| n.as_deref() == Some(want)),
+            "{job}: {names:?}"
+        );
+    }
 
     // Another runtime, on another thread, calls the master.
     let answer = std::thread::spawn(move || {

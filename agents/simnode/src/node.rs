@@ -166,7 +166,13 @@ pub async fn run_node(cfg: NodeConfig) -> Result<(), SimnodeError> {
         .into_iter()
         .map(|(topic, idx)| {
             let sink = Arc::new(InSink::new(&topic, idx, dispatcher.clone(), pubs.clone()));
-            let upstream = UpstreamSet::new(&cfg.name, &topic, sink.clone(), cfg.call_timeout);
+            let upstream = UpstreamSet::new(
+                &cfg.name,
+                &topic,
+                sink.clone(),
+                cfg.call_timeout,
+                tokio::runtime::Handle::current(),
+            );
             (topic, Subscription::new(sink, upstream))
         })
         .collect();

@@ -295,7 +295,13 @@ mod tests {
         ))));
         let pubs = Arc::new(Publications::new("/n", []));
         let sink = Arc::new(InSink::new("/scan", vec![], dispatcher, pubs));
-        let upstream = UpstreamSet::new("/n", "/scan", sink.clone(), Duration::from_secs(1));
+        let upstream = UpstreamSet::new(
+            "/n",
+            "/scan",
+            sink.clone(),
+            Duration::from_secs(1),
+            tokio::runtime::Handle::current(),
+        );
         Subscription::new(sink, upstream)
     }
 

@@ -7,7 +7,7 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use configbot_api::policy::{AppOf, PolicyConfig};
-use configbot_dataplane::{DataPlane, ThreadHook};
+use configbot_dataplane::{DataPlane, ThreadHooks};
 use configbot_ros1::{Ros1Config, Ros1DataPlane, placement_from_apps};
 use prometheus::Registry;
 
@@ -44,12 +44,12 @@ type StartError = Box<dyn std::error::Error + Send + Sync>;
 
 /// Starts a backend: its options, the stack's apps as the adaptor placement
 /// reads them, the registry its metrics go to and what each of its threads
-/// runs as it starts.
+/// runs as it starts, by the thread's job.
 type StartFn = for<'a> fn(
     &'a DataPlaneOptions,
     Arc<dyn AppOf + Send + Sync>,
     &'a Registry,
-    Option<ThreadHook>,
+    ThreadHooks,
 ) -> BoxFuture<'a, std::result::Result<Arc<dyn DataPlane>, StartError>>;
 
 /// One backend the runtime can start.
@@ -74,7 +74,7 @@ pub(super) async fn start(
     opts: &DataPlaneOptions,
     apps: Arc<dyn AppOf + Send + Sync>,
     registry: &Registry,
-    on_thread_start: Option<ThreadHook>,
+    threads: ThreadHooks,
 ) -> Result<Arc<dyn DataPlane>> {
     let backend = BACKENDS
         .iter()
@@ -87,7 +87,7 @@ pub(super) async fn start(
                 .collect::<Vec<_>>()
                 .join(", "),
         })?;
-    (backend.start)(opts, apps, registry, on_thread_start)
+    (backend.start)(opts, apps, registry, threads)
         .await
         .map_err(|source| Error::DataPlane {
             backend: backend.title,
@@ -100,7 +100,7 @@ fn start_ros1<'a>(
     opts: &'a DataPlaneOptions,
     apps: Arc<dyn AppOf + Send + Sync>,
     registry: &'a Registry,
-    on_thread_start: Option<ThreadHook>,
+    threads: ThreadHooks,
 ) -> BoxFuture<'a, std::result::Result<Arc<dyn DataPlane>, StartError>> {
     Box::pin(async move {
         let defaults = Ros1Config::default();
@@ -110,7 +110,7 @@ fn start_ros1<'a>(
             adaptor_bind_host: opts.adaptor_bind_host.clone(),
             refresh_period: opts.refresh_period.unwrap_or(defaults.refresh_period),
             placement: Some(placement_from_apps(apps, opts.policy.clone())),
-            on_thread_start,
+            threads,
             ..defaults
         };
         let dp = Ros1DataPlane::start(cfg, &opts.db_path, registry).await?;
