@@ -176,7 +176,10 @@ pub fn unsat_reason(run: &Run, defs: &[MetricDef]) -> (ResourceConfig, String) {
 
 /// After the best trial (`index`) failed verification at `fraction` (1 =
 /// as measured; `step` back-offs so far, with `bounds` its core constraints'
-/// bounds, [`measure::robust_value`]): verify it again with its non-core knobs lower (see
+/// bounds, [`measure::robust_value`]): when it failed as measured and the
+/// search stopped with trials left, the search goes on first
+/// (`search::search_on`) and the back-off waits for the next failure
+/// (`Run::deferred_backoff`); else verify it again with its non-core knobs lower (see
 /// [`next_fraction`]), for a margin from the core constraint's edge (the
 /// trial's short window may have caught a lucky moment, or a config whose
 /// non-core node only keeps up from an empty backlog). Only the first
@@ -215,6 +218,15 @@ fn back_off(
     let Some(backoff) = planned else {
         return finish(run, env, defs, out);
     };
+    // A trial as measured failed (not a back-off) and the search stopped
+    // with trials left: spend them first, with the models told what the
+    // verification measured, and keep the back-off for the next failure.
+    if step == 0
+        && let Some(next) = super::search::search_on(run, env, out)
+    {
+        run.deferred_backoff = Some(backoff);
+        return next;
+    }
     let Backoff {
         index: pick,
         fraction: next,

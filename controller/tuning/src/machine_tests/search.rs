@@ -135,10 +135,11 @@ fn push_trial_at(run: &mut Run, env: &Env<'_>, x: &[f64], cmd: &[f64], det: f64)
 /// A trial that fails its verification revises what the optimizer learned
 /// of it: its core value becomes the worst the verification measured (here
 /// every window at 30 Hz against 35), so the models no longer count it as
-/// feasible. When the search is then finished with trials left in the
-/// budget (its back-offs spent), it goes on with the optimizer's next
-/// trial instead of verifying a trial with less; once per failure (the next
-/// finish verifies trial 0), and not with the budget spent.
+/// feasible. With trials left in the budget, the search goes on with the
+/// optimizer's next trial before the failed trial backs off; the back-off
+/// is set aside for the next failure. Once per failure: when the search
+/// stops again, the best trial not rejected (trial 0) is verified, and
+/// when that fails with the budget spent, the set-aside back-off is next.
 #[test]
 fn a_failed_verification_with_trials_left_revises_the_models_and_searches_on() {
     let (st, sp) = (stack(), spec(1.0, 5));
@@ -161,7 +162,14 @@ fn a_failed_verification_with_trials_left_revises_the_models_and_searches_on() {
     assert_verifies_trial_as_measured(&run, 1);
 
     let (mut failed, out) = verify(run, &env, &[30.0; 10]);
-    assert_eq!(reasons(&out), vec!["VerificationFailed", "BackingOff"]);
+    assert_eq!(reasons(&out), vec!["VerificationFailed", "SearchingOn"]);
+    assert!(
+        event_text(&out[1]).contains(
+            "trial 1 failed its verification with 3 of 5 trials left: the search goes on"
+        ),
+        "{out:?}"
+    );
+    assert_eq!(name(&failed.state), "TrialApply");
     let told = failed.optimizer.as_ref().unwrap().observations();
     assert_eq!(
         told[1].constraints,
@@ -174,18 +182,10 @@ fn a_failed_verification_with_trials_left_revises_the_models_and_searches_on() {
         vec![40.0],
         "the record stays"
     );
+    let set_aside = failed.deferred_backoff.expect("the back-off waits");
+    assert_eq!((set_aside.index, set_aside.step), (1, 1));
 
-    let mut spent = failed.clone();
-    let mut out = Vec::new();
-    let next = finish(&mut failed, &env, &defs, &mut out);
-    assert_eq!(reasons(&out), vec!["SearchingOn"]);
-    assert!(
-        event_text(&out[0]).contains(
-            "trial 1 failed its verification with 3 of 5 trials left: the search goes on"
-        ),
-        "{out:?}"
-    );
-    assert_eq!(name(&next), "TrialApply");
+    // The search stops again: no second search for the same failure.
     let mut out = Vec::new();
     let next = finish(&mut failed, &env, &defs, &mut out);
     assert!(!reasons(&out).contains(&"SearchingOn"), "{out:?}");
@@ -197,13 +197,22 @@ fn a_failed_verification_with_trials_left_revises_the_models_and_searches_on() {
         }
     );
 
+    // Trial 0 fails with the budget spent: trial 1's back-off, set aside.
     for det in [1.0, 2.0, 3.0] {
-        push_trial(&mut spent, &env, &[0.5, 1.5], det);
+        push_trial(&mut failed, &env, &[0.5, 1.5], det);
     }
-    let mut out = Vec::new();
-    let next = finish(&mut spent, &env, &defs, &mut out);
+    failed.state = next;
+    let (backing, out) = verify(failed, &env, &[30.0; 10]);
     assert!(!reasons(&out).contains(&"SearchingOn"), "{out:?}");
-    assert_eq!(name(&next), "VerifyApply", "the budget is spent");
+    assert!(reasons(&out).contains(&"BackingOff"), "{out:?}");
+    let State::VerifyApply {
+        candidate: Candidate::Backoff(b),
+        ..
+    } = &backing.state
+    else {
+        panic!("{:?}", backing.state)
+    };
+    assert_eq!((b.index, b.step), (1, 1));
 }
 
 /// The run's next step applies trial `index`'s config, as measured, to verify it.
@@ -1432,10 +1441,11 @@ fn drive(
 /// Stand-in robot: as trials measure it, the detector's CPU costs navigation
 /// little (0.5 Hz per CPU, 36.5 Hz at none), while detection is bounded by
 /// the detector's CPU, the camera's and its input rate; a verification finds
-/// /cmd_vel 2 Hz lower whenever the detector has more than 0.6 CPU, so the
-/// capped trial (1.02 CPU) and its first back-off fail, and the second holds.
-/// (Measured with this seed: both back-offs kept the input rate and moved
-/// the two CPUs; the second moved no knob above the first's.)
+/// /cmd_vel 2 Hz lower whenever the detector has more than 0.5 CPU, so the
+/// capped trial (1.02 CPU) fails, the search goes on, its best new trial
+/// fails too, and the capped trial backs off. (Measured with this seed:
+/// three shaped back-offs, the first two failed, each moved the knobs
+/// differently and none gave as much as an earlier failure.)
 #[test]
 fn a_shaped_back_off_is_verified_and_never_gives_as_much_as_a_failure() {
     let (st, sp) = (stack(), spec(0.0, 12));
@@ -1452,7 +1462,7 @@ fn a_shaped_back_off_is_verified_and_never_gives_as_much_as_a_failure() {
     };
     let verification = |cfg: &ResourceConfig| {
         let (cmd, det) = trial(cfg);
-        let loss = if cpu(cfg, "/detector") > 0.6 {
+        let loss = if cpu(cfg, "/detector") > 0.5 {
             2.0
         } else {
             0.0
