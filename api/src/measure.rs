@@ -55,7 +55,9 @@ pub struct ProbeSeries {
     pub probe: Probe,
     /// One value per sub-window (Hz or CPUs).
     pub values: Vec<f64>,
-    /// The value over the whole window.
+    /// The value over the whole window (for a topic, refined by the arrivals
+    /// of the messages that bound its count: finer than the sub-windows'
+    /// mean for a slow topic).
     pub mean: f64,
 }
 

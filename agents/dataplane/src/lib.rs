@@ -10,6 +10,7 @@
 
 use std::collections::BTreeMap;
 use std::sync::Arc;
+use std::time::Instant;
 
 // The trait's vocabulary: the types its methods take and return, and what
 // those are made of.
@@ -61,6 +62,18 @@ impl std::fmt::Debug for ThreadHooks {
     }
 }
 
+/// A topic meter's reading: how many messages it has received, and when the
+/// last of them arrived (`None` before the first). Read together, so the
+/// count and the arrival belong to the same message: `n` messages counted
+/// between two readings arrived in the interval between their two
+/// `last_arrival`s, which measures a slow topic's rate below the one
+/// message a count over a fixed window can resolve.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct MessageCount {
+    pub messages: u64,
+    pub last_arrival: Option<Instant>,
+}
+
 /// A backend of the data plane. Methods are cheap and non-blocking: IO runs
 /// in the backend's own tasks, on the backend's own threads.
 pub trait DataPlane: Send + Sync {
@@ -70,9 +83,10 @@ pub trait DataPlane: Send + Sync {
     /// call starts measuring; `Ok(None)` until enough messages arrived.
     fn topic_stats(&self, topic: &str) -> Result<Option<TopicStats>, DataPlaneError>;
     /// Messages the topic's meter has received since it started (the first
-    /// call starts it, like [`DataPlane::topic_stats`]); a monotonic counter,
-    /// so callers get exact counts over any interval from two readings.
-    fn topic_messages(&self, topic: &str) -> Result<u64, DataPlaneError> {
+    /// call starts it, like [`DataPlane::topic_stats`]), with the arrival of
+    /// the last one: a monotonic counter, so callers get exact counts over
+    /// any interval from two readings, and the arrivals that bound them.
+    fn topic_messages(&self, topic: &str) -> Result<MessageCount, DataPlaneError> {
         Err(DataPlaneError::Backend {
             message: format!("message counts of {topic} are not supported by this backend"),
             source: None,

@@ -43,8 +43,8 @@ use std::time::Duration;
 
 use configbot_api::policy::{AppOf, PolicyConfig};
 use configbot_dataplane::{
-    AdaptorSetting, DataPlane, DataPlaneError, EdgeCounters, EdgeId, Graph, GraphEvent, NodeInfo,
-    ThreadHooks, TopicInfo, TopicStats,
+    AdaptorSetting, DataPlane, DataPlaneError, EdgeCounters, EdgeId, Graph, GraphEvent,
+    MessageCount, NodeInfo, ThreadHooks, TopicInfo, TopicStats,
 };
 use tokio::sync::{Notify, broadcast};
 use tokio::task::JoinHandle;
@@ -587,7 +587,7 @@ impl DataPlane for Ros1DataPlane {
         Ok(self.core.meter(topic).stats())
     }
 
-    fn topic_messages(&self, topic: &str) -> Result<u64, DataPlaneError> {
+    fn topic_messages(&self, topic: &str) -> Result<MessageCount, DataPlaneError> {
         let _on = self.enter();
         let known = {
             let st = lock(&self.core.state);

@@ -1,12 +1,12 @@
 //! Topic meters: a reader of the measured topic's tap ([`crate::tap`]: the
 //! agent's hidden raw TCPROS subscription) that feeds arrival times and sizes
-//! into a [`RateWindow`].
+//! into a [`RateWindow`] and counts the messages with the last one's arrival
+//! (the agent's `measure` reads that count).
 
-use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
-use configbot_dataplane::TopicStats;
+use configbot_dataplane::{MessageCount, TopicStats};
 
 use crate::stats::RateWindow;
 use crate::tcpros::Header;
@@ -15,20 +15,29 @@ use crate::upstream::{Frame, FrameSink};
 /// The meter's key among its tap's readers.
 pub const METER_KEY: &str = "/configbot/meter";
 
+/// What the meter knows, under one lock so a reading's count and last
+/// arrival belong to the same message.
+#[derive(Debug)]
+struct Arrivals {
+    window: RateWindow,
+    count: MessageCount,
+}
+
 #[derive(Debug)]
 struct Sink {
-    window: Mutex<RateWindow>,
+    arrivals: Mutex<Arrivals>,
     epoch: Instant,
-    messages: AtomicU64,
 }
 
 impl FrameSink for Sink {
     fn on_header(&self, _api: &str, _header: &Header) {}
     fn on_frame(&self, _api: &str, frame: Frame) {
-        self.messages.fetch_add(1, Ordering::Relaxed);
-        let t = self.epoch.elapsed().as_secs_f64();
-        if let Ok(mut w) = self.window.lock() {
-            w.record(t, frame.len());
+        let now = Instant::now();
+        let t = now.duration_since(self.epoch).as_secs_f64();
+        if let Ok(mut a) = self.arrivals.lock() {
+            a.window.record(t, frame.len());
+            a.count.messages += 1;
+            a.count.last_arrival = Some(now);
         }
     }
 }
@@ -42,9 +51,11 @@ pub struct Meter {
 impl Meter {
     pub fn new(window_s: f64) -> Self {
         let sink = Arc::new(Sink {
-            window: Mutex::new(RateWindow::new(window_s)),
+            arrivals: Mutex::new(Arrivals {
+                window: RateWindow::new(window_s),
+                count: MessageCount::default(),
+            }),
             epoch: Instant::now(),
-            messages: AtomicU64::new(0),
         });
         Self { sink }
     }
@@ -54,13 +65,17 @@ impl Meter {
         self.sink.clone()
     }
 
-    /// Messages received since the meter started.
-    pub fn messages(&self) -> u64 {
-        self.sink.messages.load(Ordering::Relaxed)
+    /// Messages received since the meter started, and the last one's arrival.
+    pub fn messages(&self) -> MessageCount {
+        self.sink
+            .arrivals
+            .lock()
+            .map(|a| a.count)
+            .unwrap_or_default()
     }
 
     pub fn stats(&self) -> Option<TopicStats> {
         let now = self.sink.epoch.elapsed().as_secs_f64();
-        self.sink.window.lock().ok()?.stats(now)
+        self.sink.arrivals.lock().ok()?.window.stats(now)
     }
 }

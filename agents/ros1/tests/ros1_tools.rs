@@ -214,12 +214,22 @@ fn params_topics_launch_and_graph_with_real_tools() {
     assert!((28.5..=31.5).contains(&s.rate_hz), "{s:?}");
     assert!(s.bytes_per_s > 30.0 * 4.0, "{s:?}");
     assert!(a.dp.topic_stats("/no_such_topic").is_err());
-    // the meter's message counter: exact counts over an interval
+    // the meter's message counter: exact counts over an interval, and the
+    // arrivals of the messages that bound them
     let c0 = a.dp.topic_messages(&chatter).unwrap();
     let t0 = std::time::Instant::now();
     std::thread::sleep(Duration::from_secs(2));
-    let counted = (a.dp.topic_messages(&chatter).unwrap() - c0) as f64 / t0.elapsed().as_secs_f64();
+    let c1 = a.dp.topic_messages(&chatter).unwrap();
+    let n = (c1.messages - c0.messages) as f64;
+    let counted = n / t0.elapsed().as_secs_f64();
     assert!((27.0..=33.0).contains(&counted), "counted {counted} Hz");
+    let (first, last) = (c0.last_arrival.unwrap(), c1.last_arrival.unwrap());
+    assert!(first <= t0 && last > t0, "{c0:?} {c1:?}");
+    let by_arrivals = n / (last - first).as_secs_f64();
+    assert!(
+        (28.5..=31.5).contains(&by_arrivals),
+        "{by_arrivals} Hz by arrivals"
+    );
     assert!(a.dp.topic_messages("/no_such_topic").is_err());
     launch.interrupt(Duration::from_secs(15));
 }
@@ -393,13 +403,13 @@ fn adapted_subscribers_and_the_meter_share_one_connection() {
         POLL,
         || recent(&l10) > 5 && recent(&l20) > 5,
     );
-    let before = a.dp.topic_messages(&topic).unwrap();
+    let before = a.dp.topic_messages(&topic).unwrap().messages;
     let (r10, r20) = std::thread::scope(|s| {
         let x = s.spawn(|| measure_rate(&l10, 4.0));
         let y = s.spawn(|| measure_rate(&l20, 4.0));
         (x.join().unwrap(), y.join().unwrap())
     });
-    let metered = a.dp.topic_messages(&topic).unwrap() - before;
+    let metered = a.dp.topic_messages(&topic).unwrap().messages - before;
     eprintln!("listeners {r10:.2} / {r20:.2} Hz, meter {metered} messages in 4 s");
     assert!((9.0..=11.0).contains(&r10), "10 Hz listener got {r10}");
     assert!((19.0..=21.0).contains(&r20), "20 Hz listener got {r20}");

@@ -3,10 +3,12 @@
 //!
 //! - **Constraint satisfaction rate**: the share of sub-windows (1 s) in which
 //!   every core constraint holds.
-//! - **Non-core performance**: each objective normalised and capped at its
-//!   target (`min(J, J°)/J°`, or `J°/max(J, J°)` for at-most targets), combined
-//!   by `spec.tuning.scalarization` (MaxMin: the worst; Weighted: weighted mean)
-//!   — the same definition as the optimizer's.
+//! - **Non-core performance**: each objective's value over the whole window
+//!   (the agent's, refined by message arrivals: [`whole_window`]) normalised
+//!   and capped at its target (`min(J, J°)/J°`, or `J°/max(J, J°)` for
+//!   at-most targets), combined by `spec.tuning.scalarization` (MaxMin: the
+//!   worst; Weighted: weighted mean) — the same definition as the
+//!   optimizer's.
 //! - **Constraint value fed to the optimizer**: a per-sub-window lower (upper)
 //!   bound, `mean − 2.33·sd` (`mean + 2.33·sd`) of the sub-window values, so a
 //!   config that meets its target only on average (and would hold in half of
@@ -186,6 +188,18 @@ fn series<'a>(report: &'a MeasureReport, probe: &Probe) -> Option<&'a [f64]> {
         .iter()
         .find(|s| s.probe == *probe)
         .map(|s| s.values.as_slice())
+}
+
+/// The value of `probe` over the whole window: the agent's, which for a
+/// topic is refined by the arrivals of the messages that bound its count
+/// (the agent's `measure`), so a 1 Hz objective measured over a 5 s trial is
+/// not read in steps of 0.2 Hz as the mean of its 1 s windows would be.
+fn whole_window(report: &MeasureReport, probe: &Probe) -> Option<f64> {
+    report
+        .series
+        .iter()
+        .find(|s| s.probe == *probe)
+        .map(|s| s.mean)
 }
 
 /// Every topic's whole-window rate in a report.
@@ -411,7 +425,7 @@ pub fn evaluate(defs: &[MetricDef], report: &MeasureReport, s: Scalarization) ->
     let mut feasible = true;
     for d in defs {
         let values = series(report, &d.probe).unwrap_or(&[]);
-        let (mean, _) = mean_sd(values);
+        let mean = whole_window(report, &d.probe).unwrap_or(0.0);
         means.insert(d.name.clone(), mean);
         if d.core {
             let r = if values.is_empty() {
@@ -562,6 +576,23 @@ mod tests {
         );
         assert_eq!(scalarize(&defs[..1], &means, Scalarization::MaxMin), None);
         assert_eq!(normalise(&def("l", false, false, 0.1), 0.2), 0.5);
+    }
+
+    #[test]
+    fn objectives_take_the_whole_window_value_and_constraints_their_windows() {
+        // A 0.7 Hz objective counted in 1 s windows reads 0.6 over five;
+        // the agent's whole-window value (by arrivals) says 0.7.
+        let defs = vec![def("cmd", true, true, 35.0), def("det", false, true, 1.0)];
+        let mut r = report(&[
+            ("cmd", &[36.0, 30.0, 36.0, 36.0, 36.0]),
+            ("det", &[1.0, 0.0, 1.0, 1.0, 0.0]),
+        ]);
+        r.series[1].mean = 0.7;
+        let e = evaluate(&defs, &r, Scalarization::MaxMin);
+        assert_eq!(e.means["det"], 0.7);
+        assert_eq!(e.objective, Some(0.7));
+        assert_eq!(e.worst, vec![30.0]);
+        assert!(!e.feasible);
     }
 
     #[test]
