@@ -222,3 +222,38 @@ fn state_and_events_are_written_together() {
     assert_eq!(seen, [("Normal", "trial 3"), ("Warning", "trial 3 again")]);
     assert!(events[0].id < events[1].id);
 }
+
+/// A commit does not wait for the disk; the checkpointer makes it durable
+/// within a few intervals: the object is then in the database file itself,
+/// read with the write-ahead log ignored (`immutable=1`).
+#[test]
+fn the_checkpointer_folds_commits_into_the_database_file() {
+    let (dir, s) = store();
+    s.put(Kind::RobotStack, stack("folded", "spot"), true)
+        .unwrap();
+    let uri = format!("file:{}?immutable=1", dir.path().join("t.db").display());
+    let in_file = || {
+        let c = Connection::open_with_flags(
+            &uri,
+            rusqlite::OpenFlags::SQLITE_OPEN_READ_ONLY | rusqlite::OpenFlags::SQLITE_OPEN_URI,
+        )
+        .ok()?;
+        c.query_row(
+            "SELECT count(*) FROM objects WHERE name = 'folded'",
+            [],
+            |r| r.get::<_, i64>(0),
+        )
+        .ok()
+        .filter(|n| *n == 1)
+    };
+    configbot_test_support::try_wait_until(
+        "the commit to reach the database file",
+        CHECKPOINT_EVERY * 10,
+        Duration::from_millis(50),
+        in_file,
+    )
+    .unwrap();
+    // Dropping the store stops the thread at once (the test would hang on
+    // a join that waited for a stop it never saw).
+    drop(s);
+}
