@@ -43,7 +43,7 @@
 
 use std::collections::BTreeMap;
 
-use configbot_api::measure::{MeasureReport, MeasureRequest, Probe};
+use configbot_api::measure::{MeasureReport, MeasureRequest, Probe, ProbeSeries};
 use configbot_manifests::performance_spec::{Bound, Scalarization};
 use configbot_manifests::{PerformanceSpecSpec, RobotStackSpec};
 use serde::{Deserialize, Serialize};
@@ -181,25 +181,18 @@ pub fn request(
     }
 }
 
-/// The series of `probe` in a report.
-fn series<'a>(report: &'a MeasureReport, probe: &Probe) -> Option<&'a [f64]> {
-    report
-        .series
-        .iter()
-        .find(|s| s.probe == *probe)
-        .map(|s| s.values.as_slice())
+/// The series of `probe` in a report: its 1 s windows and its whole-window
+/// value, the agent's, which for a topic is refined by the arrivals of the
+/// messages that bound its count (the agent's `measure`), so a 1 Hz
+/// objective measured over a 5 s trial is not read in steps of 0.2 Hz as the
+/// mean of its windows would be.
+fn probe_series<'a>(report: &'a MeasureReport, probe: &Probe) -> Option<&'a ProbeSeries> {
+    report.series.iter().find(|s| s.probe == *probe)
 }
 
-/// The value of `probe` over the whole window: the agent's, which for a
-/// topic is refined by the arrivals of the messages that bound its count
-/// (the agent's `measure`), so a 1 Hz objective measured over a 5 s trial is
-/// not read in steps of 0.2 Hz as the mean of its 1 s windows would be.
-fn whole_window(report: &MeasureReport, probe: &Probe) -> Option<f64> {
-    report
-        .series
-        .iter()
-        .find(|s| s.probe == *probe)
-        .map(|s| s.mean)
+/// The 1 s windows of `probe` in a report.
+fn series<'a>(report: &'a MeasureReport, probe: &Probe) -> Option<&'a [f64]> {
+    probe_series(report, probe).map(|s| s.values.as_slice())
 }
 
 /// Every topic's whole-window rate in a report.
@@ -424,8 +417,11 @@ pub fn evaluate(defs: &[MetricDef], report: &MeasureReport, s: Scalarization) ->
     let mut objectives = Vec::new();
     let mut feasible = true;
     for d in defs {
-        let values = series(report, &d.probe).unwrap_or(&[]);
-        let mean = whole_window(report, &d.probe).unwrap_or(0.0);
+        // A metric's mean is its whole-window value (core metrics' too: the
+        // bursts rule reads them), its constraint judged by its windows.
+        let found = probe_series(report, &d.probe);
+        let values = found.map_or(&[][..], |s| s.values.as_slice());
+        let mean = found.map_or(0.0, |s| s.mean);
         means.insert(d.name.clone(), mean);
         if d.core {
             let r = if values.is_empty() {

@@ -346,7 +346,7 @@ pub(crate) fn next_trial(
         out.push(normal(
             Reason::ObjectivesCapped,
             format!(
-                "trial {i} meets every core target and every objective at its cap: nothing left to gain, verifying"
+                "trial {i} meets every core target and every objective at its cap: nothing left to gain; the search ends and its best trial is verified"
             ),
         ));
         return finish(run, env, defs, out);
