@@ -130,6 +130,9 @@ pub struct Store {
     _checkpointer: Checkpointer,
 }
 
+/// How long a connection waits for another's lock before it fails.
+const BUSY_TIMEOUT: Duration = Duration::from_secs(5);
+
 /// How often the [`Checkpointer`] makes committed transactions durable.
 pub const CHECKPOINT_EVERY: Duration = Duration::from_secs(1);
 
@@ -150,7 +153,7 @@ struct Checkpointer {
 impl Checkpointer {
     fn start(path: &Path) -> rusqlite::Result<Checkpointer> {
         let conn = Connection::open(path)?;
-        conn.busy_timeout(Duration::from_secs(5))?;
+        conn.busy_timeout(BUSY_TIMEOUT)?;
         let (stop, stopped) = mpsc::channel::<()>();
         let thread = std::thread::Builder::new()
             .name("configbot-checkpoint".into())
@@ -236,7 +239,7 @@ impl Store {
             .map_err(db)?;
         conn.pragma_update(None, "wal_autocheckpoint", AUTOCHECKPOINT_PAGES)
             .map_err(db)?;
-        conn.busy_timeout(Duration::from_secs(5)).map_err(db)?;
+        conn.busy_timeout(BUSY_TIMEOUT).map_err(db)?;
         conn.execute_batch(SCHEMA).map_err(db)?;
         let checkpointer = Checkpointer::start(path).map_err(db)?;
         Ok(Store {
