@@ -210,6 +210,11 @@ vocabulary! {
         /// A trial is verified with the input of non-core apps whose
         /// objectives measured more than counts cut down to what does.
         TrimmingSurplus,
+        /// A config held its verification with its worst objectives below
+        /// the others: it is verified again with the knobs that work only
+        /// for them raised; or such a lift gave no more objective and the
+        /// config it raised is applied again.
+        LiftingObjectives,
         /// A config failed its verification.
         VerificationFailed,
         /// A verification missed in bursts: the core nodes are weighted

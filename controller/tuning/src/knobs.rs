@@ -543,6 +543,30 @@ impl KnobSpace {
         })
     }
 
+    /// The point `x` with every knob that works only for the objectives in
+    /// `factors` raised by the largest of their factors (pure; see
+    /// [`crate::measure::lift`]): the CPU of a non-core app whose every
+    /// objective ([`KnobDef::feeds`]) is among them and the adaptors into
+    /// it, not above the knob's maximum. A knob that also works for another
+    /// objective keeps its value, and so does every knob that does not only
+    /// restrict a non-core app. `None` when nothing would change.
+    pub fn lifted(&self, x: &[f64], factors: &BTreeMap<String, f64>) -> Option<Vec<f64>> {
+        self.moved(x, |k, v| {
+            let raise = (k.restricts_non_core && !k.feeds.is_empty())
+                .then(|| {
+                    k.feeds
+                        .iter()
+                        .map(|m| factors.get(m).copied())
+                        .try_fold(1.0_f64, |a, f| Some(a.max(f?)))
+                })
+                .flatten();
+            match raise {
+                Some(f) => (v * f).min(k.max).max(v),
+                None => v,
+            }
+        })
+    }
+
     /// Back-offs of `x` with a fraction of its own for each knob that only
     /// restricts a non-core app (pure): every combination of the fractions
     /// `0, 1/(n−1), …, 1` of the way from the knob's minimum to its value in
@@ -1077,6 +1101,60 @@ mod tests {
         // A cut that keeps more than TRIM_BELOW of the input is not made.
         let slight: BTreeMap<String, f64> = [("bright".to_string(), 1.7)].into();
         assert_eq!(s.trimmed(&[30.0, 1.0, 20.0, 1.5, 0.5], &slight), None);
+    }
+
+    #[test]
+    fn a_lift_raises_only_knobs_that_work_for_the_worst_objectives_alone() {
+        let knob = |name: &str, target: KnobTarget, feeds: &[&str], non_core: bool| KnobDef {
+            name: name.into(),
+            target,
+            min: 0.05,
+            max: 2.0,
+            restricts_non_core: non_core,
+            feeds: feeds.iter().map(|f| f.to_string()).collect(),
+        };
+        let rate = |sub: &str| KnobTarget::Adaptor {
+            topic: "/image".into(),
+            subscriber: sub.into(),
+        };
+        let cpu = |node: &str| KnobTarget::Cpu { node: node.into() };
+        let s = KnobSpace {
+            knobs: vec![
+                knob("cpu:/bright", cpu("/bright"), &["bright"], true),
+                knob("rate:/image>/bright", rate("/bright"), &["bright"], true),
+                knob(
+                    "rate:/image>/vision",
+                    rate("/vision"),
+                    &["people", "flow"],
+                    true,
+                ),
+                knob(
+                    "rate:/image>/both",
+                    rate("/both"),
+                    &["bright", "people"],
+                    true,
+                ),
+                knob("cpu:/tracker", cpu("/tracker"), &["bright"], false),
+            ],
+            period_micros: 20_000,
+            ..KnobSpace::default()
+        };
+        let factors: BTreeMap<String, f64> = [("bright".to_string(), 7.5)].into();
+        let y = s.lifted(&[0.05, 0.5, 0.5, 0.5, 1.0], &factors).unwrap();
+        // The brightness app's CPU and input rise together, its input to
+        // its knob's maximum at most.
+        assert!((y[0] - 0.375).abs() < 1e-9, "{y:?}");
+        assert_eq!(y[1], 2.0);
+        // /vision works for other objectives, /both for people too, and a
+        // knob that may restrict a core app is never raised.
+        assert_eq!(&y[2..], &[0.5, 0.5, 1.0]);
+        // Both worst: /both rises by the larger factor.
+        let both: BTreeMap<String, f64> =
+            [("bright".to_string(), 2.0), ("people".to_string(), 3.0)].into();
+        let y = s.lifted(&[0.05, 0.5, 0.5, 0.5, 1.0], &both).unwrap();
+        assert_eq!(y[3], 1.5);
+        // Nothing changes at the maxima.
+        assert_eq!(s.lifted(&[2.0, 2.0, 0.5, 0.5, 1.0], &factors), None);
     }
 
     #[test]

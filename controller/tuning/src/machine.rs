@@ -169,6 +169,10 @@ pub enum Candidate {
     Baseline,
     /// A config from the library for this context.
     Library { profile: Box<ConfigProfile> },
+    /// A config of this run that held its verification (`base`, a trial or
+    /// a back-off), with the knobs of its worst objectives raised; `step`
+    /// counts the lifts from it, from 1 (see [`outcome::lift`]).
+    Lift { base: Box<Candidate>, step: u32 },
 }
 
 impl Candidate {
@@ -181,8 +185,38 @@ impl Candidate {
             Candidate::Library { profile } => {
                 format!("library profile {}", profile.metadata.name)
             }
+            Candidate::Lift { base, step } => format!(
+                "{} with its worst objectives raised{}",
+                base.text(),
+                if *step > 1 {
+                    format!(" ({step} times)")
+                } else {
+                    String::new()
+                }
+            ),
         }
     }
+
+    /// The trial this config came from, and the back-off fraction it was
+    /// verified at, if any: a trial, its back-off or a lift of either.
+    pub fn trial(&self) -> Option<(usize, Option<f64>)> {
+        match self {
+            Candidate::Trial { index } => Some((*index, None)),
+            Candidate::Backoff(b) => Some((b.index, Some(b.fraction))),
+            Candidate::Lift { base, .. } => base.trial(),
+            Candidate::Baseline | Candidate::Library { .. } => None,
+        }
+    }
+}
+
+/// A config that held its verification and was then lifted
+/// ([`outcome::lift`]): what to go back to when the lift does not hold,
+/// or when the lifted config tips later.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Held {
+    pub candidate: Candidate,
+    pub config: ResourceConfig,
+    pub eval: Evaluation,
 }
 
 /// The trial `index`, which failed verification, with every knob that only
@@ -283,6 +317,11 @@ pub enum State {
         so_far: Option<MeasureReport>,
     },
     UnsatApply {
+        config: ResourceConfig,
+    },
+    /// Go back to a config that held its verification (`Run::held`), after a
+    /// lift of it did not hold or gave no more objective; then monitor it.
+    RestoreApply {
         config: ResourceConfig,
     },
     /// Watch the constraints; `satisfied` false after Unsat (no relearning on violations then).
@@ -481,6 +520,15 @@ pub struct Run {
     /// goes on once per failure, then the best unrejected trial is verified.
     #[serde(default)]
     pub searched_on: usize,
+    /// The configs lifts were tried from, the last on top: the config each
+    /// lift raised (see [`outcome::lift`]). A lift that fails goes back to
+    /// the top one; a lifted config that tips is verified from it again.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub held: Vec<Held>,
+    /// No more lifts in this run: one failed, gave nothing, or a tip is
+    /// being retried.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub lift_ended: bool,
 }
 
 impl Run {
@@ -530,6 +578,8 @@ impl Run {
             failed_verifications: Vec::new(),
             bursty: false,
             searched_on: 0,
+            held: Vec::new(),
+            lift_ended: false,
         }
     }
 
@@ -567,12 +617,13 @@ impl Run {
                 Phase::Tuning
             }
             State::Drain { then, .. } => match **then {
-                State::VerifyApply { .. } => Phase::Satisfied,
+                State::VerifyApply { .. } | State::RestoreApply { .. } => Phase::Satisfied,
                 _ => Phase::Tuning,
             },
-            State::VerifyApply { .. } | State::VerifySettle { .. } | State::Verify { .. } => {
-                Phase::Satisfied
-            }
+            State::VerifyApply { .. }
+            | State::VerifySettle { .. }
+            | State::Verify { .. }
+            | State::RestoreApply { .. } => Phase::Satisfied,
             State::UnsatApply { .. }
             | State::Monitor {
                 satisfied: false, ..
@@ -700,7 +751,9 @@ pub fn effect(run: &Run, env: &Env<'_>) -> Effect {
         State::TrialApply { config, .. } | State::VerifyApply { config, .. } => {
             Effect::Apply(config.clone())
         }
-        State::UnsatApply { config } => Effect::Apply(config.clone()),
+        State::UnsatApply { config } | State::RestoreApply { config } => {
+            Effect::Apply(config.clone())
+        }
         State::Drain {
             config,
             applied: false,
@@ -760,6 +813,7 @@ pub fn step(mut run: Run, input: Input, env: &Env<'_>) -> (Run, Vec<Output>) {
             State::TrialApply { config, .. }
             | State::VerifyApply { config, .. }
             | State::UnsatApply { config }
+            | State::RestoreApply { config }
             | State::Drain { config, .. } => run.current = config.clone(),
             State::RemediateApply { .. } => run.current = ResourceConfig::default(),
             _ => {}
@@ -826,6 +880,7 @@ pub fn step(mut run: Run, input: Input, env: &Env<'_>) -> (Run, Vec<Output>) {
             match known {
                 Some(p) if !skip_library && library::learned_for(&p, env.spec) => {
                     run.library_hits += 1;
+                    run.held.clear();
                     out.push(normal(
                         Reason::LibraryHit,
                         format!(
@@ -848,6 +903,8 @@ pub fn step(mut run: Run, input: Input, env: &Env<'_>) -> (Run, Vec<Output>) {
                     run.deferred_backoff = None;
                     run.edges.clear();
                     run.failed_verifications.clear();
+                    run.held.clear();
+                    run.lift_ended = false;
                     run.optimizer = None;
                     run.baseline = None;
                     // A violation of a config that held means the workload
@@ -1100,6 +1157,13 @@ pub fn step(mut run: Run, input: Input, env: &Env<'_>) -> (Run, Vec<Output>) {
             run.monitor = ConstraintMonitor::default();
             State::Monitor {
                 satisfied: false,
+                config,
+            }
+        }
+        (State::RestoreApply { config }, Input::Applied) => {
+            run.monitor = ConstraintMonitor::default();
+            State::Monitor {
+                satisfied: true,
                 config,
             }
         }

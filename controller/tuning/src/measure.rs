@@ -391,6 +391,68 @@ pub fn surplus(
         .collect()
 }
 
+/// Objectives within this factor of the worst one count as tied with it in
+/// a [`lift`]: a window's count of a slow output is ±20 %.
+pub const LIFT_TIE: f64 = 1.25;
+
+/// Under [`Scalarization::MaxMin`], what raising the worst objectives of a
+/// measurement would take (see [`lift`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Lift {
+    /// The scalarised level: the worst objective's normalised value.
+    pub level: f64,
+    /// The objective above the worst ones that sets the next level, and
+    /// that level (at most 1, the cap).
+    pub next: (String, f64),
+    /// Each worst objective (within [`LIFT_TIE`] of the level) and how
+    /// many times more it must measure to reach
+    /// [`crate::knobs::TRIM_HEADROOM`] times the next level: an app's
+    /// output follows its input and CPU while those are what limit it.
+    pub factors: BTreeMap<String, f64>,
+}
+
+/// The worst objectives of `means` under max-min scalarisation and how far
+/// each must rise to pass the next one (pure). Only the worst objective
+/// counts, so giving more to an app whose objective sits above it buys
+/// nothing, and giving its own app more is the one way up. `None` under
+/// weighted scalarisation, with fewer than two at-least objectives, when
+/// the worst measured nothing (no rate to scale from) or when every
+/// objective is tied with the worst.
+pub fn lift(defs: &[MetricDef], means: &BTreeMap<String, f64>, s: Scalarization) -> Option<Lift> {
+    if s != Scalarization::MaxMin {
+        return None;
+    }
+    let u: Vec<(&str, f64)> = defs
+        .iter()
+        .filter(|d| !d.core && d.at_least && d.target > 0.0)
+        .map(|d| {
+            (
+                d.name.as_str(),
+                normalise(d, means.get(&d.name).copied().unwrap_or(0.0)),
+            )
+        })
+        .collect();
+    let level = u.iter().map(|p| p.1).fold(f64::INFINITY, f64::min);
+    if u.len() < 2 || level <= 0.0 || !level.is_finite() {
+        return None;
+    }
+    let tied = |v: f64| v <= level * LIFT_TIE;
+    let (next_name, next) = u
+        .iter()
+        .filter(|p| !tied(p.1))
+        .min_by(|a, b| a.1.total_cmp(&b.1))?;
+    let goal = crate::knobs::TRIM_HEADROOM * next;
+    Some(Lift {
+        level,
+        next: (next_name.to_string(), *next),
+        factors: u
+            .iter()
+            .filter(|p| tied(p.1))
+            .map(|(n, v)| (n.to_string(), goal / v))
+            .collect(),
+    })
+}
+
 /// Everything the loop derives from one measurement.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct Evaluation {
@@ -674,5 +736,59 @@ mod tests {
         let mut none = means.clone();
         none.insert("people".into(), 0.0);
         assert!(surplus(&defs, &none, Scalarization::MaxMin).is_empty());
+    }
+
+    #[test]
+    fn a_lift_raises_the_worst_objectives_past_the_next_one_up() {
+        let defs = vec![
+            def("core", true, true, 25.0),
+            def("people", false, true, 3.0),
+            def("flow", false, true, 3.0),
+            def("bright", false, true, 15.0),
+        ];
+        let means = |people: f64, flow: f64, bright: f64| -> BTreeMap<String, f64> {
+            [
+                ("core", 28.0),
+                ("people", people),
+                ("flow", flow),
+                ("bright", bright),
+            ]
+            .into_iter()
+            .map(|(k, v)| (k.to_string(), v))
+            .collect()
+        };
+        // The restrictive corner of real-nodelets: bright's 0.5 Hz (0.033)
+        // sets the level; people and flow's 0.5 Hz (0.167) is the next.
+        let l = lift(&defs, &means(0.5, 0.5, 0.5), Scalarization::MaxMin).unwrap();
+        assert!((l.level - 0.5 / 15.0).abs() < 1e-9);
+        assert_eq!(l.next.0, "people");
+        assert_eq!(l.factors.keys().collect::<Vec<_>>(), vec!["bright"]);
+        // To 1.5 times the next level: 0.25 of 15 Hz, from 0.5 Hz.
+        assert!((l.factors["bright"] - 7.5).abs() < 1e-9, "{l:?}");
+        // Objectives within LIFT_TIE of the worst rise with it; the next
+        // level is capped at 1.
+        let l = lift(&defs, &means(1.0, 1.2, 30.0), Scalarization::MaxMin).unwrap();
+        assert_eq!(l.factors.keys().collect::<Vec<_>>(), vec!["flow", "people"]);
+        assert_eq!(l.next, ("bright".to_string(), 1.0));
+        assert!((l.factors["people"] - 4.5).abs() < 1e-9, "{l:?}");
+        // Nothing to lift: every objective tied, the worst at 0, or
+        // weighted scalarisation (every objective counts there).
+        assert_eq!(
+            lift(&defs, &means(1.0, 1.1, 5.5), Scalarization::MaxMin),
+            None
+        );
+        assert_eq!(
+            lift(&defs, &means(0.0, 1.0, 5.0), Scalarization::MaxMin),
+            None
+        );
+        assert_eq!(
+            lift(&defs, &means(0.5, 0.5, 0.5), Scalarization::Weighted),
+            None
+        );
+        // One objective has nothing to pass.
+        assert_eq!(
+            lift(&defs[..2], &means(0.5, 0.5, 0.5), Scalarization::MaxMin),
+            None
+        );
     }
 }

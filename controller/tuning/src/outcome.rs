@@ -15,7 +15,7 @@ use configbot_optimizer::{Observation, Prediction};
 use super::knobs::KnobSpace;
 use super::library;
 use super::machine::{
-    BACKOFF_FASTEST, BACKOFF_MIN, BACKOFF_STEP, BACKOFF_STEPS, Backoff, Candidate, Edge, Env,
+    BACKOFF_FASTEST, BACKOFF_MIN, BACKOFF_STEP, BACKOFF_STEPS, Backoff, Candidate, Edge, Env, Held,
     Output, Remedy, Run, SATISFIED, State, TrialRecord, drain_first, finish, normal, warning,
 };
 use super::measure::{self, MetricDef};
@@ -625,6 +625,28 @@ pub fn after_tip(
     violation: &Trigger,
     out: &mut Vec<Output>,
 ) -> Option<State> {
+    if let Some(lifted @ Candidate::Lift { .. }) = &run.applied
+        && !run.tip_retried
+    {
+        // A lifted config tipped: the config it raised held before it.
+        let h = run.held.pop()?;
+        out.push(normal(
+            Reason::VerifyingNextBest,
+            format!(
+                "the config of {} held its verification, then tipped; verifying {}, the config it raised, before relearning",
+                lifted.text(),
+                h.candidate.text()
+            ),
+        ));
+        run.tipped = Some(violation.clone());
+        run.tip_retried = true;
+        run.lift_ended = true;
+        let verify = State::VerifyApply {
+            candidate: h.candidate,
+            config: run.knobs.weigh(h.config),
+        };
+        return Some(drain_first(run, env, verify));
+    }
     let (index, held) = match run.applied {
         Some(Candidate::Trial { index }) => (index, format!("trial {index}")),
         Some(Candidate::Backoff(b)) => (b.index, format!("trial {} {}", b.index, b.text())),
@@ -919,6 +941,23 @@ pub fn verified(
 ) -> State {
     let sat = eval.satisfaction;
     if holds(&eval, minute) {
+        if let Candidate::Lift { .. } = &candidate
+            && let Some(h) = run.held.last()
+            && eval.objective.unwrap_or(0.0) <= h.eval.objective.unwrap_or(0.0)
+        {
+            out.push(normal(
+                Reason::LiftingObjectives,
+                format!(
+                    "{} held but measured objective {:.3}, no more than {:.3}: applying {} again",
+                    candidate.text(),
+                    eval.objective.unwrap_or(0.0),
+                    h.eval.objective.unwrap_or(0.0),
+                    h.candidate.text()
+                ),
+            ));
+            run.lift_ended = true;
+            return restore(run, env, defs, out);
+        }
         out.push(normal(
             Reason::Satisfied,
             format!(
@@ -929,41 +968,26 @@ pub fn verified(
                     .map_or("-".to_string(), |o| format!("{o:.3}"))
             ),
         ));
-        let learned = matches!(candidate, Candidate::Trial { .. } | Candidate::Backoff(_));
-        if let (true, Some(ctx)) = (learned, &run.context) {
-            out.push(Output::SaveProfile(Box::new(library::profile(
-                env.namespace,
-                env.spec_name,
-                Some(library::spec_digest(env.spec)),
-                ctx,
-                &config,
-                sat,
-                eval.objective,
-                profile_trials(run, defs),
-            ))));
+        if let Some(next) = lift(run, env, defs, &candidate, &config, &eval, out) {
+            return next;
         }
-        if !matches!(candidate, Candidate::Baseline) {
-            run.reason = None;
-        }
-        run.tipped = None;
-        run.applied = Some(candidate);
-        run.verified = Some(eval);
-        run.monitor = ConstraintMonitor::default();
+        adopt(run, env, defs, candidate, &config, eval, out);
         return State::Monitor {
             satisfied: true,
             config,
         };
     }
-    if matches!(candidate, Candidate::Trial { .. } | Candidate::Backoff(_))
-        && weigh_on_bursts(
-            run,
-            defs,
-            &candidate.text(),
-            &eval,
-            "; verifying it again",
-            out,
-        )
-    {
+    if matches!(
+        candidate,
+        Candidate::Trial { .. } | Candidate::Backoff(_) | Candidate::Lift { .. }
+    ) && weigh_on_bursts(
+        run,
+        defs,
+        &candidate.text(),
+        &eval,
+        "; verifying it again",
+        out,
+    ) {
         return verify_weighted(run, env, candidate, config);
     }
     match candidate {
@@ -1041,6 +1065,21 @@ pub fn verified(
                 out,
             )
         }
+        Candidate::Lift { .. } => {
+            out.push(warning(
+                Reason::VerificationFailed,
+                format!(
+                    "{} {}; applying {} again",
+                    candidate.text(),
+                    shortfall(defs, &eval, minute),
+                    run.held
+                        .last()
+                        .map_or("the config it raised".into(), |h| h.candidate.text())
+                ),
+            ));
+            run.lift_ended = true;
+            restore(run, env, defs, out)
+        }
         Candidate::Baseline => {
             if env.tuning_allowed {
                 let (config, reason) = unsat_reason(run, defs);
@@ -1066,4 +1105,136 @@ pub fn verified(
             }
         }
     }
+}
+
+/// The config a verification held becomes the run's: saved to the library
+/// when this run learned it, and what status and a tip refer to.
+fn adopt(
+    run: &mut Run,
+    env: &Env<'_>,
+    defs: &[MetricDef],
+    candidate: Candidate,
+    config: &ResourceConfig,
+    eval: measure::Evaluation,
+    out: &mut Vec<Output>,
+) {
+    let learned = matches!(
+        candidate,
+        Candidate::Trial { .. } | Candidate::Backoff(_) | Candidate::Lift { .. }
+    );
+    if let (true, Some(ctx)) = (learned, &run.context) {
+        out.push(Output::SaveProfile(Box::new(library::profile(
+            env.namespace,
+            env.spec_name,
+            Some(library::spec_digest(env.spec)),
+            ctx,
+            config,
+            eval.satisfaction,
+            eval.objective,
+            profile_trials(run, defs),
+        ))));
+    }
+    if !matches!(candidate, Candidate::Baseline) {
+        run.reason = None;
+    }
+    run.tipped = None;
+    run.applied = Some(candidate);
+    run.verified = Some(eval);
+    run.monitor = ConstraintMonitor::default();
+}
+
+/// Most lifts one run tries from a held config, one after another: each
+/// raises the worst objectives past the next one up, so more than one
+/// fewer than the objectives would lift objectives already lifted.
+fn max_lifts(defs: &[MetricDef]) -> u32 {
+    let objectives = defs.iter().filter(|d| !d.core).count();
+    u32::try_from(objectives.saturating_sub(1)).unwrap_or(u32::MAX)
+}
+
+/// After `candidate` held its verification (`config`, measured as
+/// `eval`): under max-min scalarisation, when its worst objectives sit
+/// below the next one up ([`measure::lift`]), the same config with the
+/// knobs that work only for them raised ([`KnobSpace::lifted`]) is
+/// verified next, drained first, and `candidate` is kept (`Run::held`) to
+/// go back to. `None` when nothing is to be lifted: the search chose
+/// its trials by what the models predicted from short trials, while a
+/// held config is the one point known to hold, and raising only what
+/// its worst objectives' apps get is the nearest step up from it. The
+/// rest of the config stays as it held, so a core constraint that the
+/// raised apps do not load stays where it was. Measured on real-nodelets
+/// (2026-11-28): three runs of four ended on the restrictive corner, at
+/// objective 0.033 by the brightness transform's 0.5 Hz of input, while
+/// the vision manager's 0.5 Hz there gave people and flow 0.167. Two
+/// lifts measured there since (session 39) each missed one window of 30
+/// and gave way, 36 s each.
+#[allow(clippy::too_many_arguments)]
+fn lift(
+    run: &mut Run,
+    env: &Env<'_>,
+    defs: &[MetricDef],
+    candidate: &Candidate,
+    config: &ResourceConfig,
+    eval: &measure::Evaluation,
+    out: &mut Vec<Output>,
+) -> Option<State> {
+    if run.lift_ended || run.tipped.is_some() || run.tip_retried {
+        return None;
+    }
+    let (base, step) = match candidate {
+        Candidate::Trial { .. } | Candidate::Backoff(_) => (candidate.clone(), 1),
+        Candidate::Lift { base, step } => ((**base).clone(), step + 1),
+        Candidate::Baseline | Candidate::Library { .. } => return None,
+    };
+    if step > max_lifts(defs) {
+        return None;
+    }
+    let plan = measure::lift(defs, &eval.means, env.spec.tuning.scalarization)?;
+    let x = run.knobs.from_config(config);
+    let y = run.knobs.lifted(&x, &plan.factors)?;
+    let raised: Vec<String> = run
+        .knobs
+        .knobs
+        .iter()
+        .zip(x.iter().zip(&y))
+        .filter(|(_, (a, b))| b > a)
+        .map(|(k, (a, b))| format!("{} {a:.2} -> {b:.2}", k.name))
+        .collect();
+    let worst: Vec<&str> = plan.factors.keys().map(String::as_str).collect();
+    out.push(normal(
+        Reason::LiftingObjectives,
+        format!(
+            "{} held at objective {:.3}, set by {}, below {} ({:.3}): verifying it with the knobs that work only for them raised to reach {} times that: {}",
+            candidate.text(),
+            plan.level,
+            worst.join(", "),
+            plan.next.0,
+            plan.next.1,
+            super::knobs::TRIM_HEADROOM,
+            raised.join(", ")
+        ),
+    ));
+    run.held.push(Held {
+        candidate: candidate.clone(),
+        config: config.clone(),
+        eval: eval.clone(),
+    });
+    let verify = State::VerifyApply {
+        candidate: Candidate::Lift {
+            base: Box::new(base),
+            step,
+        },
+        config: run.knobs.weigh(run.knobs.to_config(&y)),
+    };
+    Some(drain_first(run, env, verify))
+}
+
+/// Goes back to the config the last lift raised (`Run::held`), drained
+/// first, and settles on it as its verification measured it.
+fn restore(run: &mut Run, env: &Env<'_>, defs: &[MetricDef], out: &mut Vec<Output>) -> State {
+    let Some(h) = run.held.pop() else {
+        return finish(run, env, defs, out);
+    };
+    let config = run.knobs.weigh(h.config);
+    adopt(run, env, defs, h.candidate, &config, h.eval, out);
+    drain_first(run, env, State::RestoreApply { config })
 }

@@ -446,8 +446,8 @@ pub(crate) fn search_on(run: &mut Run, env: &Env<'_>, out: &mut Vec<Output>) -> 
     next
 }
 
-/// `then` (applying a trial's config, or verifying a config of this run's
-/// knobs), after a drain of the non-core apps when the spec's settle is
+/// `then` (applying a trial's config, verifying a config of this run's
+/// knobs, or going back to one that held), after a drain of the non-core apps when the spec's settle is
 /// adaptive and some adaptor feeds a non-core app (see [`settle`]).
 pub(crate) fn drain_first(run: &Run, env: &Env<'_>, then: State) -> State {
     if !settle::drains(env.spec.tuning.settle_seconds) {
@@ -455,8 +455,9 @@ pub(crate) fn drain_first(run: &Run, env: &Env<'_>, then: State) -> State {
     }
     let config = match &then {
         State::TrialApply { config, .. }
+        | State::RestoreApply { config }
         | State::VerifyApply {
-            candidate: Candidate::Trial { .. } | Candidate::Backoff(_),
+            candidate: Candidate::Trial { .. } | Candidate::Backoff(_) | Candidate::Lift { .. },
             config,
         } => config,
         _ => return then,

@@ -7,7 +7,7 @@ use configbot_manifests::meta::{condition_types as ct, set_condition};
 use configbot_manifests::performance_spec::TrialStatus;
 use configbot_manifests::{Condition, ConditionStatus, PerformanceSpecStatus, Reason};
 
-use super::machine::{Backoff, Candidate, Run, State, TrialRecord};
+use super::machine::{Candidate, Run, State, TrialRecord};
 use super::measure::MetricDef;
 
 /// Condition type written by the tuning loop: the run's outcome.
@@ -53,13 +53,9 @@ pub fn status(
         _ => None,
     };
     (s.best_trial, s.best_trial_backoff) = match (&run.applied, &monitored) {
-        (Some(Candidate::Trial { index }), Some(_)) => (Some(*index as u32), None),
-        (
-            Some(Candidate::Backoff(Backoff {
-                index, fraction, ..
-            })),
-            Some(_),
-        ) => (Some(*index as u32), Some(*fraction)),
+        (Some(c), Some(_)) => c
+            .trial()
+            .map_or((None, None), |(index, f)| (Some(index as u32), f)),
         _ => (None, None),
     };
     s.rejected_trials = run.rejected.iter().map(|&i| i as u32).collect();
@@ -123,6 +119,9 @@ fn conditions(run: &Run) -> (Cond, Cond) {
                     Reason::Satisfied,
                     format!("applied the best trial ({index})"),
                 ),
+                Some(c @ Candidate::Lift { .. }) => {
+                    (Reason::Satisfied, format!("applied {}", c.text()))
+                }
                 Some(Candidate::Backoff(b)) => (
                     Reason::Satisfied,
                     format!(

@@ -143,6 +143,7 @@ fn name(s: &State) -> &'static str {
         State::VerifySettle { .. } => "VerifySettle",
         State::Verify { .. } => "Verify",
         State::UnsatApply { .. } => "UnsatApply",
+        State::RestoreApply { .. } => "RestoreApply",
         State::Monitor { .. } => "Monitor",
         State::RemediatePause { .. } => "RemediatePause",
         State::RemediateApply { .. } => "RemediateApply",

@@ -1566,3 +1566,109 @@ fn a_trial_whose_objective_measured_beyond_what_counts_is_verified_with_that_inp
     assert!(out.is_empty(), "{out:?}");
     assert_verifies_trial_as_measured(&run, 0);
 }
+
+/// A spec whose detector has two objectives: `det` (≥ 10 Hz of
+/// detections) and `img` (≥ 20 Hz of the camera's images, which the
+/// reports give at 30 Hz); only `det` is fed by the detector's CPU.
+fn two_objectives() -> PerformanceSpec {
+    let mut sp = spec(1.0, 5);
+    sp.spec.metrics.push(
+        serde_json::from_value(serde_json::json!(
+            {"name": "img", "app": "det", "source": {"topicRate": {"topic": "/image"}}, "target": {"atLeast": 20}}
+        ))
+        .unwrap(),
+    );
+    sp
+}
+
+/// A verification of `run`'s pending candidate, measured as `cmd` windows
+/// with detection at `det`.
+fn verify_det(run: Run, env: &Env<'_>, cmd: &[f64], det: f64) -> (Run, Vec<Output>) {
+    assert_eq!(name(&run.state), "VerifyApply", "{:?}", run.state);
+    let (run, _) = step(run, Input::Applied, env);
+    let (run, _) = step(run, Input::Slept, env);
+    assert_eq!(name(&run.state), "Verify");
+    step(run, report(cmd, det), env)
+}
+
+/// A held config whose worst objective sits below the next one up is
+/// verified again with the knobs that work only for that objective raised
+/// (here the detector's CPU: detection 4 of 10 against the images' cap,
+/// so 3.75 times, to its 2 CPU maximum). When the lift holds with more
+/// objective, the run monitors it; when it misses, or holds with no more,
+/// the run goes back to the config it raised and monitors that, without
+/// measuring it again.
+#[test]
+fn a_held_config_is_lifted_where_only_its_worst_objective_gains() {
+    let (st, sp) = (stack(), two_objectives());
+    let env = env(&st, &sp);
+    let mut run = with_two_trials(&env);
+    run.knobs.knobs[0].feeds = vec!["det".into()];
+    run.trials.clear();
+    push_trial(&mut run, &env, &[1.0, 1.5], 4.0);
+    run.state = finish(&mut run, &env, &env.defs(), &mut Vec::new());
+    let held = run.knobs.to_config(&[1.0, 1.5]);
+    let (lifting, out) = verify_det(run, &env, &OK, 4.0);
+    assert_eq!(reasons(&out), vec!["Satisfied", "LiftingObjectives"]);
+    assert!(
+        event_text(&out[1])
+            .contains("trial 0 held at objective 0.400, set by det, below img (1.000)")
+            && event_text(&out[1]).contains("cpu:/detector 1.00 -> 2.00"),
+        "{out:?}"
+    );
+    let lift = Candidate::Lift {
+        base: Box::new(Candidate::Trial { index: 0 }),
+        step: 1,
+    };
+    assert_eq!(
+        lifting.state,
+        State::VerifyApply {
+            candidate: lift.clone(),
+            config: lifting.knobs.to_config(&[2.0, 1.5]),
+        }
+    );
+    // Held with more objective: monitored, and no second lift (two
+    // objectives, one lift).
+    let (up, out) = verify_det(lifting.clone(), &env, &OK, 9.0);
+    assert_eq!(reasons(&out), vec!["Satisfied", "<save>"]);
+    assert!(
+        matches!(&up.state, State::Monitor { satisfied: true, config } if *config == up.knobs.to_config(&[2.0, 1.5]))
+    );
+    assert_eq!(up.applied, Some(lift.clone()));
+    let status = crate::status::status(&Default::default(), &up, &env.defs(), 5, 1, "t");
+    assert_eq!(
+        (status.best_trial, status.best_trial_backoff),
+        (Some(0), None)
+    );
+    // Missed: back to trial 0's config, applied and monitored.
+    let (back, out) = verify_det(lifting.clone(), &env, &BAD, 9.0);
+    assert_eq!(reasons(&out), vec!["VerificationFailed", "<save>"]);
+    assert!(
+        event_text(&out[0]).contains("applying trial 0 again"),
+        "{out:?}"
+    );
+    assert_eq!(
+        back.state,
+        State::RestoreApply {
+            config: held.clone()
+        }
+    );
+    assert_eq!(back.applied, Some(Candidate::Trial { index: 0 }));
+    let (back, _) = step(back, Input::Applied, &env);
+    assert_eq!(
+        back.state,
+        State::Monitor {
+            satisfied: true,
+            config: held.clone()
+        }
+    );
+    assert!(back.held.is_empty() && back.lift_ended);
+    // Held with no more objective: back too.
+    let (same, out) = verify_det(lifting, &env, &OK, 4.0);
+    assert_eq!(reasons(&out), vec!["LiftingObjectives", "<save>"]);
+    assert!(
+        event_text(&out[0]).contains("no more than 0.400"),
+        "{out:?}"
+    );
+    assert_eq!(same.state, State::RestoreApply { config: held });
+}
