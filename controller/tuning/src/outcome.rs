@@ -647,9 +647,8 @@ pub fn after_tip(
         };
         return Some(drain_first(run, env, verify));
     }
-    let (index, held) = match run.applied {
-        Some(Candidate::Trial { index }) => (index, format!("trial {index}")),
-        Some(Candidate::Backoff(b)) => (b.index, format!("trial {} {}", b.index, b.text())),
+    let (index, held) = match &run.applied {
+        Some(c @ (Candidate::Trial { .. } | Candidate::Backoff(_))) => (c.trial()?.0, c.text()),
         _ => return None,
     };
     if run.tip_retried {

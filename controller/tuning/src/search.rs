@@ -447,8 +447,9 @@ pub(crate) fn search_on(run: &mut Run, env: &Env<'_>, out: &mut Vec<Output>) -> 
 }
 
 /// `then` (applying a trial's config, verifying a config of this run's
-/// knobs, or going back to one that held), after a drain of the non-core apps when the spec's settle is
-/// adaptive and some adaptor feeds a non-core app (see [`settle`]).
+/// knobs, or going back to one that held), after a drain of the non-core
+/// apps when the spec's settle is adaptive and some adaptor feeds a
+/// non-core app (see [`settle`]).
 pub(crate) fn drain_first(run: &Run, env: &Env<'_>, then: State) -> State {
     if !settle::drains(env.spec.tuning.settle_seconds) {
         return then;
