@@ -860,7 +860,10 @@ pub fn shortfall(defs: &[MetricDef], eval: &measure::Evaluation, minute: bool) -
 
 /// Whether a verification's measurement holds. A first measurement holds
 /// when ≥ [`SATISFIED`] of its windows held and every core constraint's
-/// bound holds over them (the same rule as a trial's). One measured on to
+/// bound holds over them (the same rule as a trial's); one shorter than
+/// the minute, every window on target, but with less margin than the bar
+/// needs, its bound missed or not, is not judged by this but measured on
+/// (the runner's `Verify` step, [`measure::short_of_bar`]). One measured on to
 /// the minute because its margin was short of the bar, and every
 /// measurement of a run whose core windows miss in bursts (measured on to
 /// its record; `minute`, see [`measure::short_of_bar`],
