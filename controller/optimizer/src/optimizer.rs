@@ -142,6 +142,28 @@ pub enum StopReason {
     NoSafeCandidate,
 }
 
+/// What a user reads in the run's `TuningStopped` event.
+impl std::fmt::Display for StopReason {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            StopReason::Budget => write!(f, "every trial of the budget was measured"),
+            StopReason::ExpectedImprovementBelow { max_cei } => write!(
+                f,
+                "the models expect no config to improve the objective by more than {max_cei:.4} (constrained expected improvement, below the stopping threshold)"
+            ),
+            StopReason::LikelyInfeasible { p_any_feasible } => write!(
+                f,
+                "no trial was feasible and the models give the most promising config a {:.1} % chance of being so",
+                p_any_feasible * 100.0
+            ),
+            StopReason::NoSafeCandidate => write!(
+                f,
+                "no config that was not measured yet is predicted safe for the core services"
+            ),
+        }
+    }
+}
+
 /// The answer to [`Optimizer::ask`].
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]

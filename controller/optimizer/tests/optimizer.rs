@@ -285,7 +285,19 @@ fn stops_when_no_candidate_is_worth_a_trial() {
         Outcome::Best {
             reason: StopReason::ExpectedImprovementBelow { max_cei },
             ..
-        } => assert!(max_cei < 1e9),
+        } => {
+            assert!(max_cei < 1e9);
+            // The event a user reads names the threshold in words, not as a
+            // Rust value.
+            let text = StopReason::ExpectedImprovementBelow { max_cei }.to_string();
+            assert!(
+                text.starts_with(
+                    "the models expect no config to improve the objective by more than"
+                ),
+                "{text}"
+            );
+            assert!(!text.contains('{'), "{text}");
+        }
         o => panic!("{o:?}"),
     }
 }

@@ -397,7 +397,7 @@ fn ask(run: &mut Run, env: &Env<'_>, out: &mut Vec<Output>) -> Option<State> {
         Ok(Proposal::Stop(r)) => {
             out.push(normal(
                 Reason::TuningStopped,
-                format!("optimizer stopped: {r:?}"),
+                format!("the search stopped: {r}"),
             ));
             None
         }
