@@ -724,7 +724,7 @@ async fn a_recorder_left_by_a_killed_runtime_is_stopped() {
     let fake = tmp.path().join("rosbag");
     std::fs::write(
         &fake,
-        "#!/bin/sh\ntrap 'exit 0' INT\nwhile :; do sleep 0.05; done\n",
+        "#!/bin/sh\ntrap 'exit 0' INT\necho ready\nwhile :; do sleep 0.05; done\n",
     )
     .unwrap();
     std::fs::set_permissions(&fake, std::os::unix::fs::PermissionsExt::from_mode(0o755)).unwrap();
@@ -742,12 +742,14 @@ async fn a_recorder_left_by_a_killed_runtime_is_stopped() {
     let elsewhere = tmp.path().join("other");
     let mut orphan = spawn(&bags);
     let mut other = spawn(&elsewhere);
-    // (A SIGINT before the trap is set ends the script too.)
+    // Started once each stand-in has set its trap and said so. Before
+    // that, a SIGINT can reach `env` while it still has this process's
+    // disposition (ignored when the tests run as a background job, as CI's
+    // do) and be lost, and `/proc` can show a command line mid-exec.
     wait_until_async("recorders started", T, RT_POLL, async || {
-        [orphan.pid(), other.pid()].iter().all(|p| {
-            std::fs::read_to_string(format!("/proc/{p}/cmdline"))
-                .is_ok_and(|c| c.contains("record"))
-        })
+        [&orphan, &other]
+            .iter()
+            .all(|p| p.lines.lock().unwrap().iter().any(|(_, l)| l == "ready"))
     })
     .await;
     Recordings::new(bags.clone(), RECORDING_MAX_MB)
