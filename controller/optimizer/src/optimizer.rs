@@ -31,6 +31,12 @@
 //!   reported best, which must be measured here); the best feasible prior
 //!   config is re-measured right after the current one and the Sobol part of
 //!   the initial design shrinks accordingly.
+//! - **Anchored design** ([`Settings::design_anchor`], off by default): the
+//!   initial design's space-filling points are drawn toward a config known
+//!   to be feasible by a scale that halves with each infeasible trial of the
+//!   design and grows by half (to at most 1) with each feasible one, so a
+//!   design whose trials miss a constraint searches from the feasible side
+//!   while one whose trials hold covers the whole space.
 //! - **Censored trials** (early-stopped because clearly infeasible): the
 //!   partial constraint values enter the constraint models as if measured
 //!   (they are the evidence of infeasibility, and more trial time would not
@@ -102,6 +108,16 @@ pub struct Settings {
     /// knobs (see [`crate::trust`]); `None` (the default) searches the whole space.
     #[serde(default)]
     pub trust_region: Option<TrustRegionSettings>,
+    /// Anchored design (knob values in real units): the initial design's
+    /// points after the current config are drawn toward this config, each
+    /// `anchor + scale · (point − anchor)` in the unit cube, where `scale`
+    /// starts at 1, halves with each infeasible (or censored) trial of the
+    /// design and grows by half with each feasible one, to at most 1. A
+    /// trial of the design: any told while design points remain (the
+    /// current config, a config measured without asking) and the design's
+    /// own points. `None` (the default): the design fills the space.
+    #[serde(default)]
+    pub design_anchor: Option<Vec<f64>>,
 }
 
 impl Default for Settings {
@@ -124,6 +140,7 @@ impl Default for Settings {
             safe_reach: 0.15,
             safe_max_lengthscale: 0.3,
             trust_region: None,
+            design_anchor: None,
         }
     }
 }
@@ -219,7 +236,23 @@ pub struct Optimizer {
     pending: Option<Vec<f64>>,
     stopped: Option<StopReason>,
     last_p_any_feasible: Option<f64>,
+    /// The anchored design's scale (see [`Settings::design_anchor`]).
+    #[serde(default = "full_scale")]
+    design_scale: f64,
+    /// Whether the pending proposal is a point of the initial design.
+    #[serde(default)]
+    pending_design: bool,
 }
+
+fn full_scale() -> f64 {
+    1.0
+}
+
+/// How the anchored design's scale moves with each trial of the design
+/// (see [`Settings::design_anchor`]): halved by an infeasible one, grown by
+/// half by a feasible one.
+const DESIGN_SHRINK: f64 = 0.5;
+const DESIGN_GROWTH: f64 = 1.5;
 
 impl Optimizer {
     /// A cold start from the current config (knob values in real units).
@@ -235,6 +268,9 @@ impl Optimizer {
         prior: Vec<Observation>,
     ) -> Result<Self> {
         problem.space.check(current)?;
+        if let Some(a) = &settings.design_anchor {
+            problem.space.check(a)?;
+        }
         for o in &prior {
             problem.check(o)?;
         }
@@ -299,6 +335,8 @@ impl Optimizer {
             pending: None,
             stopped: None,
             last_p_any_feasible: None,
+            design_scale: 1.0,
+            pending_design: false,
         })
     }
 
@@ -328,6 +366,19 @@ impl Optimizer {
     /// Records a measured trial (for any config, not only the proposed one).
     pub fn tell(&mut self, obs: Observation) -> Result<()> {
         self.problem.check(&obs)?;
+        // A trial of the design: one told while design points remain (the
+        // current config, a config measured without asking), or the
+        // design's last point, proposed and now measured.
+        let of_design = !self.design.is_empty() || self.pending_design;
+        self.pending_design = false;
+        if self.settings.design_anchor.is_some() && of_design {
+            let step = if self.problem.is_feasible(&obs) {
+                DESIGN_GROWTH
+            } else {
+                DESIGN_SHRINK
+            };
+            self.design_scale = (self.design_scale * step).min(1.0);
+        }
         self.pending = None;
         self.observations.push(obs);
         Ok(())
@@ -363,6 +414,26 @@ impl Optimizer {
             self.stopped = None;
         }
         Ok(n)
+    }
+
+    /// A design point drawn toward the anchor by the design's scale (see
+    /// [`Settings::design_anchor`]); the point itself without an anchor.
+    /// The current config and a prior's best stay where they are.
+    fn anchored(&self, u: &[f64]) -> Vec<f64> {
+        let fixed = u == self.current.as_slice() || self.prior.iter().any(|o| self.at(o, u));
+        let Some(a) = self.settings.design_anchor.as_ref().filter(|_| !fixed) else {
+            return u.to_vec();
+        };
+        let space = &self.problem.space;
+        let a = space.to_unit(a);
+        let s = self.design_scale;
+        let v: Vec<f64> = u.iter().zip(&a).map(|(p, c)| c + s * (p - c)).collect();
+        space.snap_unit(&v)
+    }
+
+    /// The anchored design's scale now (1 without an anchor).
+    pub fn design_scale(&self) -> f64 {
+        self.design_scale
     }
 
     /// Whether `o` was measured at `u` (unit cube, see [`Self::measured`]).
@@ -602,6 +673,7 @@ impl Optimizer {
         };
         // Initial design (safety-checked when safe exploration is on).
         while let Some(u) = self.design.pop() {
+            let u = self.anchored(&u);
             if self.measured(&u) {
                 continue;
             }
@@ -613,6 +685,7 @@ impl Optimizer {
                 _ => true,
             };
             if safe {
+                self.pending_design = true;
                 return Ok(Proposal::Try(space.from_unit(&u)));
             }
         }

@@ -375,3 +375,92 @@ fn a_revised_best_trial_takes_back_a_stop_on_expected_improvement_not_the_budget
     spent.revise(&best.x, &missed).unwrap();
     assert_eq!(spent.ask().unwrap(), Proposal::Stop(StopReason::Budget));
 }
+
+/// A design anchored at a feasible config: while its trials miss the
+/// constraint, its points are drawn toward the anchor (the scale halves per
+/// miss), and once they hold it spreads out again (grows by half per
+/// feasible trial); the current config stays where it is.
+#[test]
+fn an_anchored_design_searches_from_the_feasible_side_while_its_trials_miss() {
+    use configbot_optimizer::{Constraint, Knob, Objective, Problem, Scalarization, Space};
+    let space = Space::new(vec![
+        Knob::linear("a", 0.0, 1.0),
+        Knob::linear("b", 0.0, 1.0),
+    ])
+    .unwrap();
+    let problem = Problem::new(
+        space,
+        vec![Objective::capped("rate", 2.0)],
+        vec![Constraint::at_most("load", 0.5)],
+        Scalarization::MaxMin,
+    )
+    .unwrap();
+    // The load is a + b: only the part of the box near (0, 0) is feasible.
+    let measure = |x: &[f64]| Observation {
+        x: x.to_vec(),
+        objectives: vec![x[0] + x[1]],
+        constraints: vec![x[0] + x[1]],
+        censored: false,
+    };
+    let settings = Settings {
+        design_anchor: Some(vec![0.0, 0.0]),
+        initial_design_size: 8,
+        ..small(7, 20)
+    };
+    let mut opt = Optimizer::new(problem.clone(), settings.clone(), &[1.0, 1.0]).unwrap();
+    // The current config (everything at its maximum) misses.
+    assert_eq!(opt.ask().unwrap(), Proposal::Try(vec![1.0, 1.0]));
+    opt.tell(measure(&[1.0, 1.0])).unwrap();
+    assert_eq!(opt.design_scale(), 0.5);
+    let mut scales = Vec::new();
+    for _ in 0..7 {
+        let scale = opt.design_scale();
+        let Proposal::Try(x) = opt.ask().unwrap() else {
+            panic!("the design has points left")
+        };
+        assert!(
+            x.iter().all(|v| *v <= scale + 1e-9),
+            "{x:?} outside the box of scale {scale}"
+        );
+        let feasible = x[0] + x[1] <= 0.5;
+        opt.tell(measure(&x)).unwrap();
+        let next = opt.design_scale();
+        if feasible {
+            assert_eq!(next, (scale * 1.5).min(1.0));
+        } else {
+            assert_eq!(next, scale * 0.5);
+        }
+        scales.push(scale);
+    }
+    assert!(
+        scales.iter().any(|s| *s < 0.5),
+        "missed trials shrank it: {scales:?}"
+    );
+    assert!(
+        scales.windows(2).any(|w| w[1] > w[0]),
+        "held trials grew it: {scales:?}"
+    );
+    // Without an anchor the design fills the whole box, whatever its trials measure.
+    let mut free = Optimizer::new(
+        problem,
+        Settings {
+            design_anchor: None,
+            ..settings
+        },
+        &[1.0, 1.0],
+    )
+    .unwrap();
+    let mut xs = Vec::new();
+    for _ in 0..8 {
+        let Proposal::Try(x) = free.ask().unwrap() else {
+            panic!("the design has points left")
+        };
+        free.tell(measure(&x)).unwrap();
+        xs.push(x);
+    }
+    assert_eq!(free.design_scale(), 1.0);
+    assert!(
+        xs.iter().skip(1).any(|x| x[0] > 0.5 || x[1] > 0.5),
+        "{xs:?}"
+    );
+}
