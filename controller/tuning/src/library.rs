@@ -11,7 +11,7 @@ use std::collections::BTreeMap;
 use configbot_api::graph::Graph;
 use configbot_manifests::{
     API_VERSION, ConfigProfile, ConfigProfileSpec, Kind, ObjectMeta, PerformanceSpecSpec,
-    ProfileContext, ProfileTrial, ResourceConfig, RobotStack,
+    ProfileContext, ProfileTrial, ResourceConfig, RobotStack, RobotStackSpec,
 };
 use configbot_optimizer::Observation;
 
@@ -81,6 +81,14 @@ pub(crate) fn fnv(text: &str) -> u64 {
 /// Digest of what a learned config depends on: the spec's metrics and knobs.
 pub fn spec_digest(spec: &PerformanceSpecSpec) -> String {
     let text = serde_json::to_string(&(&spec.metrics, &spec.knobs)).unwrap_or_default();
+    format!("{:016x}", fnv(&text))
+}
+
+/// Digest of what a stack's measurements depend on: its apps and nodes (how
+/// each is started) and the spec's metrics and knobs. The bench keeps it with
+/// an oracle, so a later run reuses that oracle only for the same manifests.
+pub fn stack_digest(stack: &RobotStackSpec, spec: &PerformanceSpecSpec) -> String {
+    let text = serde_json::to_string(&(stack, &spec.metrics, &spec.knobs)).unwrap_or_default();
     format!("{:016x}", fnv(&text))
 }
 

@@ -915,6 +915,79 @@ fn a_feasible_restrictive_corner_goes_on_searching_from_it() {
 }
 
 #[test]
+fn a_corner_that_missed_in_bursts_is_measured_again_weighted_before_any_verdict() {
+    let (st, sp) = (stack(), spec(0.0, 20));
+    let env = env(&st, &sp);
+    // Three windows of five on target, the mean (37) above 35: bursts.
+    let bursty = [40.0, 40.0, 30.0, 30.0, 45.0];
+    let (run, out) = baseline_then_first_trial(&env, &BAD, report(&bursty, 0.0));
+    assert_eq!(
+        reasons(&out),
+        vec!["Trial", "CoreWeighted", "FeasibilityFirst"]
+    );
+    assert!(event_text(&out[2]).contains("again with the core nodes weighted"));
+    let State::TrialApply { x, config } = &run.state else {
+        panic!("{:?}", run.state)
+    };
+    assert_eq!(x, &run.trials[0].x, "the corner again");
+    assert_eq!(config.cpu_weight.get("/planner"), Some(&knobs::CORE_WEIGHT));
+    assert_eq!(run.corner_trial, Some(1));
+    // Weighted, it misses clearly: now the verdict.
+    let (again, _) = step(run.clone(), Input::Applied, &env);
+    let (again, out) = step(again, report(&[30.0; 5], 0.0), &env);
+    assert_eq!(reasons(&out), vec!["Trial", "Unsat"]);
+    assert_eq!(name(&again.state), "UnsatApply");
+    // Weighted, it holds: the search goes on from it.
+    let (run, _) = step(run, Input::Applied, &env);
+    let (run, out) = step(run, report(&OK, 2.0), &env);
+    assert_eq!(reasons(&out), vec!["Trial"]);
+    assert_eq!(name(&run.state), "TrialApply");
+    assert_eq!(run.trials.len(), 2);
+}
+
+#[test]
+fn the_design_after_a_feasible_corner_is_drawn_toward_it() {
+    let (st, sp) = (stack(), spec(0.0, 20));
+    let env = env(&st, &sp);
+    let (run, _) = baseline_then_first_trial(&env, &BAD, report(&OK, 2.0));
+    let opt = run.optimizer.as_ref().unwrap();
+    let space = &opt.problem().space;
+    let corner = space.to_unit(&run.trials[0].x);
+    let anchor = space.to_unit(opt.settings().design_anchor.as_ref().expect("anchored"));
+    assert!(
+        anchor
+            .iter()
+            .zip(&corner)
+            .all(|(a, c)| (a - c).abs() < 1e-3),
+        "{anchor:?} vs the corner {corner:?}"
+    );
+    // The baseline missed (halved), the corner held (grown by half).
+    assert_eq!(opt.design_scale(), 0.75);
+    let State::TrialApply { x, .. } = &run.state else {
+        panic!("{:?}", run.state)
+    };
+    let u = space.to_unit(x);
+    assert!(
+        u.iter()
+            .zip(&corner)
+            .all(|(u, c)| (u - c).abs() <= 0.75 + 1e-3),
+        "{u:?} is no nearer the corner {corner:?}"
+    );
+    // A baseline that holds has no corner to anchor at.
+    let (run, _) = step(
+        with(State::Baseline {
+            graph: graph(),
+            prior: None,
+        }),
+        report(&OK, 2.0),
+        &env,
+    );
+    let opt = run.optimizer.as_ref().expect("a search");
+    assert!(opt.settings().design_anchor.is_none());
+    assert_eq!(opt.design_scale(), 1.0);
+}
+
+#[test]
 fn a_run_whose_objectives_are_all_capped_stops_early_and_verifies() {
     let (st, sp) = (stack(), spec(0.0, 20));
     let env = env(&st, &sp);
