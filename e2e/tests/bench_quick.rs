@@ -387,4 +387,82 @@ fn quick_bench_on_a_real_stack_writes_every_row_and_the_oracle() {
     check_svg(&out.path().join("real-perception-progress.svg"));
     check_svg(&out.path().join("real-perception-core-rate.svg"));
     assert!(printed.contains("X ORACLE"), "{printed}");
+    for key in ["measuredAt", "machine", "stackDigest"] {
+        assert!(
+            oracle[key].is_object() || oracle[key].is_string(),
+            "{key}: {oracle}"
+        );
+    }
+    reused_oracle(out.path(), &oracle);
+}
+
+/// `--oracle-from`: a second bench takes the first one's oracle (every
+/// measured config, its best as the oracle row) without measuring it, and
+/// refuses one measured for other manifests before it writes anything.
+fn reused_oracle(first: &Path, oracle: &Value) {
+    let out = tempfile::tempdir().expect("temp dir");
+    let log = out.path().join("bench.log");
+    let args = [
+        "--stacks",
+        "real-perception",
+        "--real-methods",
+        "oracle",
+        "--oracle-from",
+    ];
+    let mut bench = Bench::start(
+        out.path(),
+        &log,
+        &[&args[..], &[first.to_str().unwrap()]].concat(),
+    );
+    let printed = finish(&mut bench, &log, Duration::from_secs(120));
+    assert!(printed.contains("not measured again"), "{printed}");
+    let again: Value = serde_json::from_str(
+        &std::fs::read_to_string(out.path().join("oracle-real-perception.json"))
+            .expect("oracle-real-perception.json"),
+    )
+    .expect("the oracle is JSON");
+    assert!(again["reusedFrom"].as_str().is_some(), "{again}");
+    for key in [
+        "configs",
+        "verified",
+        "best",
+        "stackDigest",
+        "measuredAt",
+        "machine",
+    ] {
+        assert_eq!(again[key], oracle[key], "{key}");
+    }
+    let json: Value = serde_json::from_str(
+        &std::fs::read_to_string(out.path().join("bench.json")).expect("bench.json"),
+    )
+    .expect("bench.json is JSON");
+    let rows = json["results"].as_array().expect("results");
+    let methods: Vec<&str> = rows.iter().filter_map(|r| r["method"].as_str()).collect();
+    let expected: &[&str] = if oracle["best"].is_null() {
+        &[]
+    } else {
+        &["oracle"]
+    };
+    assert_eq!(methods, expected, "{rows:?}");
+    // Measured for other manifests: refused, with nothing written.
+    let other = tempfile::tempdir().expect("temp dir");
+    let mut tampered = oracle.clone();
+    tampered["stackDigest"] = Value::from("0000000000000000");
+    std::fs::write(
+        other.path().join("oracle-real-perception.json"),
+        tampered.to_string(),
+    )
+    .expect("write");
+    let refused = other.path().join("out");
+    let run = Command::new(common::configbot_bin())
+        .args(["bench", "--quick", "--out"])
+        .arg(&refused)
+        .args(args)
+        .arg(other.path())
+        .output()
+        .expect("run configbot bench");
+    let said = String::from_utf8_lossy(&run.stderr);
+    assert!(!run.status.success(), "{said}");
+    assert!(said.contains("other manifests"), "{said}");
+    assert!(!refused.exists(), "nothing written before the check");
 }

@@ -28,7 +28,7 @@ use configbot_manifests::performance_spec::TrialStatus;
 use configbot_manifests::{
     Kind, PerformanceSpec, PerformanceSpecStatus, Phase, RobotStack, decode_status,
 };
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use serde_json::Value;
 
 use self::owner::Current;
@@ -78,6 +78,14 @@ pub struct BenchArgs {
     /// Real stacks: seconds the oracle measures each config for.
     #[arg(long, default_value_t = 6)]
     oracle_window_secs: u64,
+    /// Real stacks: take each stack's oracle from DIR/oracle-<stack>.json,
+    /// written by an earlier bench, instead of measuring it (about 20 min per
+    /// stack). The oracle is the yardstick of a stack on a machine class:
+    /// the bench stops before it starts anything when a file is missing,
+    /// was measured for other manifests (its stack digest) or on another
+    /// class of machine (CPUs and model).
+    #[arg(long, value_name = "DIR")]
+    oracle_from: Option<PathBuf>,
     /// Seconds each config is measured for.
     #[arg(long, default_value_t = 30)]
     window_secs: u64,
@@ -119,7 +127,7 @@ pub struct BenchArgs {
 }
 
 /// One measured method on one stack.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(rename_all = "camelCase")]
 pub struct MethodResult {
     pub stack: String,
@@ -138,7 +146,7 @@ pub struct MethodResult {
 /// What a tuning run cost. Seconds count from applying the PerformanceSpec
 /// to the moment the spec's status first showed the event (polled every
 /// [`POLL`]; the run writes status right after each step).
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(rename_all = "camelCase")]
 pub struct TuningCost {
     pub phase: Phase,
@@ -362,6 +370,15 @@ fn real_plan(a: &BenchArgs, p: &Plan) -> real::RealPlan {
 /// The whole bench; every step runs on a robot borrowed from `cur`.
 async fn bench(a: &BenchArgs, cur: &mut Current) -> anyhow::Result<ExitCode> {
     let p = plan(a);
+    let rp = real_plan(a, &p);
+    // Checked before anything in the output folder changes.
+    let mut earlier = match &a.oracle_from {
+        Some(_) if !rp.methods.contains(&real::Method::Oracle) => {
+            anyhow::bail!("--oracle-from gives the oracle row, which --real-methods leaves out")
+        }
+        Some(dir) => real::load_oracles(dir, &p.stacks)?,
+        None => Default::default(),
+    };
     std::fs::create_dir_all(&a.out)?;
     // A bench.json left by an earlier run in this folder is not this run's.
     match std::fs::remove_file(a.out.join("bench.json")) {
@@ -370,9 +387,8 @@ async fn bench(a: &BenchArgs, cur: &mut Current) -> anyhow::Result<ExitCode> {
     }
     let mut results = Vec::new();
     let mut oracles = Vec::new();
-    let rp = real_plan(a, &p);
     for name in p.stacks.iter().filter(|s| real::is_real(s)) {
-        let (rows, oracle) = real::run_stack(cur, a, &rp, name).await?;
+        let (rows, oracle) = real::run_stack(cur, a, &rp, name, earlier.remove(name)).await?;
         let (stack, spec) = super::demo::example(name)?;
         let defs = measure::metric_defs(&stack.spec, &spec.spec);
         results.extend(rows);

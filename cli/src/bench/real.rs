@@ -15,14 +15,18 @@
 //!   space ([`oracle`]), each from a drained state, and the best one that
 //!   holds ≥ 99.5 % over a full window; a candidate whose window missed in
 //!   bursts is verified again with the core nodes weighted, as a tuning
-//!   run would verify it.
+//!   run would verify it. The oracle is the yardstick of a stack on a
+//!   machine class: `--oracle-from DIR` takes it from an earlier bench's
+//!   `oracle-<stack>.json` instead of measuring it again (about 20 min per
+//!   stack), when that file was measured for the same manifests on a
+//!   machine of the same class ([`reusable`]).
 
 use std::path::Path;
 use std::process::Stdio;
 use std::time::Duration;
 
 use configbot_manifests::{PerformanceSpec, ResourceConfig, RobotStack};
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use serde_json::Value;
 
 use super::owner::Current;
@@ -30,6 +34,7 @@ use super::{BenchArgs, FLOW_TIMEOUT, MethodResult, result, start, tuned, wait_un
 use crate::demo::{example, measure_defs};
 use configbot_controller::tuning::robot::Robot;
 use configbot_tuning::knobs::KnobSpace;
+use configbot_tuning::library;
 use configbot_tuning::measure::{self, MetricDef};
 use configbot_tuning::outcome;
 use configbot_tuning::settle;
@@ -79,12 +84,15 @@ pub struct RealPlan {
     pub max_trials: Option<u32>,
 }
 
-/// Every row of one real stack, in order.
+/// Every row of one real stack, in order; `earlier` is the stack's oracle
+/// taken from `--oracle-from` ([`load_oracles`]), reported instead of
+/// measuring one.
 pub async fn run_stack(
     cur: &mut Current,
     a: &BenchArgs,
     p: &RealPlan,
     name: &str,
+    earlier: Option<Oracle>,
 ) -> anyhow::Result<(Vec<MethodResult>, Option<Oracle>)> {
     let (stack, mut spec) = example(name)?;
     if let Some(m) = p.max_trials {
@@ -130,7 +138,14 @@ pub async fn run_stack(
         rows.extend(runs);
         rows.push(median);
     }
-    let oracle = if p.oracle_configs > 0 && runs_row(Method::Oracle) {
+    let oracle = if let Some(o) = earlier {
+        println!(
+            "==> {name}: oracle from {} (measured {}), not measured again",
+            o.reused_from.as_deref().unwrap_or("an earlier bench"),
+            o.measured_at.as_deref().unwrap_or("at an unrecorded time")
+        );
+        Some(o)
+    } else if p.oracle_configs > 0 && runs_row(Method::Oracle) {
         println!(
             "==> {name}: oracle, {} configs of {} s",
             p.oracle_configs, p.oracle_window
@@ -233,7 +248,7 @@ async fn per_node_default(
 }
 
 /// One config the oracle measured.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(rename_all = "camelCase")]
 pub struct OracleConfig {
     pub x: Vec<f64>,
@@ -244,7 +259,7 @@ pub struct OracleConfig {
 }
 
 /// One verification of an oracle candidate over a full window.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(rename_all = "camelCase")]
 pub struct OracleVerification {
     /// Index into `Oracle::configs`.
@@ -256,15 +271,27 @@ pub struct OracleVerification {
     pub satisfaction: f64,
     /// The satisfaction of the minute after, the config left in place, when
     /// this one held: the minute the candidate is reported by.
-    #[serde(skip_serializing_if = "Option::is_none")]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub then: Option<f64>,
 }
 
 /// What the oracle measured on one stack.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(rename_all = "camelCase")]
 pub struct Oracle {
     pub stack: String,
+    /// When it was measured (RFC 3339, UTC).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub measured_at: Option<String>,
+    /// The machine it was measured on.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub machine: Option<Machine>,
+    /// [`library::stack_digest`] of the manifests it was measured for.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub stack_digest: Option<String>,
+    /// The file a bench took it from (`--oracle-from`) instead of measuring it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub reused_from: Option<String>,
     pub knobs: Vec<String>,
     pub pinned: Vec<String>,
     pub window_seconds: u64,
@@ -274,6 +301,118 @@ pub struct Oracle {
     /// The best config that held ≥ 99.5 % over a full window and then over
     /// another, as measured in the second.
     pub best: Option<MethodResult>,
+}
+
+/// The machine a measurement ran on; an oracle stands for another run on
+/// the same class of machine (CPUs and model), whatever its hostname.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(rename_all = "camelCase")]
+pub struct Machine {
+    pub hostname: String,
+    /// CPUs this process may run on.
+    pub cpus: usize,
+    /// `model name` in `/proc/cpuinfo`.
+    pub cpu_model: String,
+}
+
+impl Machine {
+    /// The machine this bench runs on.
+    pub fn here() -> Machine {
+        let read = |p: &str| std::fs::read_to_string(p).unwrap_or_default();
+        let cpu_model = read("/proc/cpuinfo")
+            .lines()
+            .find_map(|l| {
+                let (k, v) = l.split_once(':')?;
+                (k.trim() == "model name").then(|| v.trim().to_string())
+            })
+            .unwrap_or_default();
+        Machine {
+            hostname: read("/proc/sys/kernel/hostname").trim().to_string(),
+            cpus: std::thread::available_parallelism().map_or(0, |n| n.get()),
+            cpu_model,
+        }
+    }
+}
+
+/// Whether `o`, an oracle an earlier bench wrote, may stand for this run's
+/// oracle of `stack` (pure): measured for the manifests whose
+/// [`library::stack_digest`] is `digest`, on a machine of `here`'s class.
+/// `Ok` carries what could not be checked or differs harmlessly (an oracle
+/// written before the bench recorded its manifests or machine, another
+/// hostname), to be printed; `Err` says why it may not.
+pub fn reusable(
+    o: &Oracle,
+    stack: &str,
+    digest: &str,
+    here: &Machine,
+) -> Result<Vec<String>, String> {
+    if o.stack != stack {
+        return Err(format!("it is the oracle of {}, not of {stack}", o.stack));
+    }
+    let mut notes = Vec::new();
+    match &o.stack_digest {
+        Some(d) if d != digest => {
+            return Err(format!(
+                "it was measured for other manifests of {stack} (digest {d}; these are {digest}): measure it again"
+            ));
+        }
+        Some(_) => {}
+        None => notes.push(
+            "it records no manifest digest (written before the bench kept one): the manifests are not checked"
+                .to_string(),
+        ),
+    }
+    match &o.machine {
+        Some(m) if m.cpus != here.cpus || m.cpu_model != here.cpu_model => {
+            return Err(format!(
+                "it was measured on {} CPUs of {:?}, this machine has {} of {:?}: an oracle is a yardstick of its machine class",
+                m.cpus, m.cpu_model, here.cpus, here.cpu_model
+            ));
+        }
+        Some(m) if m.hostname != here.hostname => notes.push(format!(
+            "it was measured on host {}, a machine of this one's class",
+            m.hostname
+        )),
+        Some(_) => {}
+        None => notes.push(
+            "it records no machine (written before the bench kept one): the machine class is not checked"
+                .to_string(),
+        ),
+    }
+    Ok(notes)
+}
+
+/// The oracles `--oracle-from DIR` names for `stacks` (each real stack's
+/// `DIR/oracle-<stack>.json`), read and checked ([`reusable`]) before the
+/// bench starts any robot, so a missing or unfit file stops it with nothing
+/// measured; notes are printed.
+pub fn load_oracles(
+    dir: &Path,
+    stacks: &[String],
+) -> anyhow::Result<std::collections::BTreeMap<String, Oracle>> {
+    let here = Machine::here();
+    let mut out = std::collections::BTreeMap::new();
+    for name in stacks.iter().filter(|s| is_real(s)) {
+        let path = dir.join(format!("oracle-{name}.json"));
+        let text = std::fs::read_to_string(&path)
+            .map_err(|e| anyhow::anyhow!("--oracle-from: reading {}: {e}", path.display()))?;
+        let mut o: Oracle = serde_json::from_str(&text)
+            .map_err(|e| anyhow::anyhow!("--oracle-from: {}: {e}", path.display()))?;
+        let (stack, spec) = example(name)?;
+        let digest = library::stack_digest(&stack.spec, &spec.spec);
+        let notes = reusable(&o, name, &digest, &here).map_err(|e| {
+            anyhow::anyhow!(
+                "--oracle-from: {} cannot stand for this run's: {e}",
+                path.display()
+            )
+        })?;
+        for n in notes {
+            println!("    {}: {n}", path.display());
+        }
+        o.reused_from = Some(path.display().to_string());
+        out.insert(name.clone(), o);
+    }
+    Ok(out)
 }
 
 /// The points the oracle measures (pure): the two corners of the knob
@@ -417,6 +556,10 @@ async fn oracle(
         }
         anyhow::Ok(Oracle {
             stack: name.into(),
+            measured_at: Some(now_rfc3339()),
+            machine: Some(Machine::here()),
+            stack_digest: Some(library::stack_digest(&stack.spec, &spec.spec)),
+            reused_from: None,
             knobs: space.knobs.iter().map(|k| k.name.clone()).collect(),
             pinned: space.pinned_names().iter().map(|s| s.to_string()).collect(),
             window_seconds: p.oracle_window,
@@ -472,6 +615,15 @@ async fn measure_from_drained(
     r.apply(config).await?;
     tokio::time::sleep(Duration::from_secs(3)).await;
     measure_defs(r, defs, secs).await
+}
+
+/// Now as RFC 3339, UTC, to the second.
+fn now_rfc3339() -> String {
+    let now = time::OffsetDateTime::now_utc();
+    now.replace_nanosecond(0)
+        .unwrap_or(now)
+        .format(&time::format_description::well_known::Rfc3339)
+        .unwrap_or_default()
 }
 
 /// Writes `oracle-<stack>.json`.
@@ -618,6 +770,88 @@ mod tests {
                 );
             }
         }
+    }
+
+    fn measured(stack: &str) -> Oracle {
+        Oracle {
+            stack: stack.into(),
+            measured_at: Some("2026-11-28T20:00:00Z".into()),
+            machine: Some(machine("vm-1", 2)),
+            stack_digest: Some("d1".into()),
+            reused_from: None,
+            knobs: vec!["cpu:/a".into()],
+            pinned: Vec::new(),
+            window_seconds: 6,
+            configs: Vec::new(),
+            verified: Vec::new(),
+            best: Some(row(stack, "oracle", 1.0, 4.0)),
+        }
+    }
+
+    fn machine(host: &str, cpus: usize) -> Machine {
+        Machine {
+            hostname: host.into(),
+            cpus,
+            cpu_model: "Some CPU @ 2.0GHz".into(),
+        }
+    }
+
+    #[test]
+    fn an_oracle_stands_for_the_same_manifests_on_the_same_machine_class() {
+        let o = measured("s");
+        assert_eq!(reusable(&o, "s", "d1", &machine("vm-1", 2)), Ok(vec![]));
+        // Another host of the same class: reused, and said so.
+        let notes = reusable(&o, "s", "d1", &machine("vm-2", 2)).unwrap();
+        assert!(notes.len() == 1 && notes[0].contains("vm-1"), "{notes:?}");
+        let e = reusable(&o, "s", "d2", &machine("vm-1", 2)).unwrap_err();
+        assert!(e.contains("other manifests") && e.contains("d2"), "{e}");
+        let e = reusable(&o, "s", "d1", &machine("vm-1", 4)).unwrap_err();
+        assert!(e.contains("machine class"), "{e}");
+        let e = reusable(&o, "t", "d1", &machine("vm-1", 2)).unwrap_err();
+        assert!(e.contains("oracle of s"), "{e}");
+        // Written before the bench kept digest and machine: reused, unchecked, said so.
+        let old = Oracle {
+            machine: None,
+            stack_digest: None,
+            ..o
+        };
+        let notes = reusable(&old, "s", "d2", &machine("vm-9", 8)).unwrap();
+        assert_eq!(notes.len(), 2, "{notes:?}");
+        assert!(notes.iter().all(|n| n.contains("not checked")), "{notes:?}");
+    }
+
+    #[test]
+    fn an_oracle_written_by_the_bench_reads_back_as_it_was() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut o = measured("real-perception");
+        let (stack, spec) = example("real-perception").unwrap();
+        o.stack_digest = Some(library::stack_digest(&stack.spec, &spec.spec));
+        o.machine = Some(Machine::here());
+        write_oracle(dir.path(), &o).unwrap();
+        let stacks = ["real-perception".to_string(), "basic-nav".to_string()];
+        let got = load_oracles(dir.path(), &stacks).unwrap();
+        assert_eq!(got.len(), 1, "only real stacks have oracles");
+        let r = &got["real-perception"];
+        assert_eq!(
+            serde_json::to_value(Oracle {
+                reused_from: None,
+                ..r.clone()
+            })
+            .unwrap(),
+            serde_json::to_value(&o).unwrap()
+        );
+        assert!(
+            r.reused_from
+                .as_deref()
+                .unwrap()
+                .ends_with("oracle-real-perception.json")
+        );
+        // A stack without a file stops the bench, naming the file.
+        let e = load_oracles(dir.path(), &["real-nodelets".to_string()]).unwrap_err();
+        assert!(
+            format!("{e:#}").contains("oracle-real-nodelets.json"),
+            "{e:#}"
+        );
     }
 
     #[test]
