@@ -132,7 +132,7 @@ pub(crate) fn baseline_done(
         // baseline misses, so the verdict rests on it, not on the baseline.
         if !rec.feasible() && !run.knobs.pinned.is_empty() {
             let what = "the config with the nodes that feed no metric at their minimum";
-            return corner_first(run, env, &[], what, out);
+            return corner_first(run, env, &[], missed(what), out);
         }
         return finish(run, env, defs, out);
     }
@@ -206,28 +206,31 @@ pub(crate) fn baseline_done(
     }
     if let Some(corner) = corner {
         let what = "the most restrictive config first (every non-core knob at its minimum)";
-        return corner_first(run, env, &corner, what, out);
+        return corner_first(run, env, &corner, missed(what), out);
     }
     next_trial(run, env, defs, out)
 }
 
 /// The restrictive corner `corner` as the run's next trial, remembered as
-/// the one whose failure ends the run Unsat (see [`next_trial`]).
+/// the one whose failure ends the run Unsat (see [`next_trial`]); `why`
+/// is the event that says so.
 fn corner_first(
     run: &mut Run,
     env: &Env<'_>,
     corner: &[f64],
-    what: &str,
+    why: String,
     out: &mut Vec<Output>,
 ) -> State {
-    out.push(normal(
-        Reason::FeasibilityFirst,
-        format!("the baseline misses a core target: measuring {what}"),
-    ));
+    out.push(normal(Reason::FeasibilityFirst, why));
     run.corner_trial = Some(run.trials.len());
     let config = run.knobs.to_config(corner);
     let x = run.knobs.from_config(&config);
     drain_first(run, env, State::TrialApply { x, config })
+}
+
+/// The event text of a baseline that missed, followed by `what`.
+fn missed(what: &str) -> String {
+    format!("the baseline misses a core target: measuring {what}")
 }
 
 /// Whether every core constraint of the baseline is on the safe side of the
@@ -349,16 +352,11 @@ pub(crate) fn next_trial(
             && corner.config.cpu_weight.is_empty()
             && outcome::bursts(defs, &corner.eval)
         {
-            out.push(normal(
-                Reason::FeasibilityFirst,
-                format!(
-                    "the most restrictive config (trial {i}) missed in bursts while every core mean held its target: measuring it again with the core nodes weighted before any verdict"
-                ),
-            ));
             let x = corner.x.clone();
-            run.corner_trial = Some(run.trials.len());
-            let config = run.knobs.to_config(&x);
-            return drain_first(run, env, State::TrialApply { x, config });
+            let why = format!(
+                "the most restrictive config (trial {i}) missed in bursts while every core mean held its target: measuring it again with the core nodes weighted before any verdict"
+            );
+            return corner_first(run, env, &x, why, out);
         }
         let (config, reason) = unsat_reason(run, defs);
         let reason = format!(
