@@ -66,4 +66,9 @@ impl Error {
     pub fn is_not_found(&self) -> bool {
         matches!(self, Error::Read { source, .. } if source.kind() == std::io::ErrorKind::NotFound)
     }
+
+    /// A removal refused because the cgroup still holds a task (`EBUSY`).
+    pub fn is_busy(&self) -> bool {
+        matches!(self, Error::Remove { source, .. } if source.kind() == std::io::ErrorKind::ResourceBusy)
+    }
 }

@@ -12,6 +12,7 @@
 //! is `None` there and the threads stay where the agent runs.
 
 use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
 
 use crate::error::Result;
 use crate::fsio::{create_dir, read_ids, remove_dir, write_file};
@@ -88,22 +89,33 @@ impl ThreadPlacement {
     }
 }
 
+/// How long [`release_v1`] keeps moving threads out of a group whose
+/// threads keep starting new ones (a new thread starts in its parent's
+/// cgroup, and the data plane's start hook places it there too).
+const RELEASE_DEADLINE: Duration = Duration::from_secs(2);
+
 /// Removes the agent's thread cgroups below `subtree_dir` (v1), first
 /// moving any thread still in one up to the subtree's parent: the agent
-/// tears its subtree down while its data plane may still be running.
+/// tears its subtree down while its data plane may still be running, so a
+/// thread may start in a group between the move and the removal; the move
+/// is repeated until the group is empty and gone, or the deadline passes.
 pub(crate) fn release_v1(subtree_dir: &Path) -> Result<()> {
     for group in AgentThreads::ALL {
         let dir = subtree_dir.join(group.dir_name());
-        if !dir.exists() {
-            continue;
-        }
-        if let Some(parent) = subtree_dir.parent() {
-            for tid in read_ids(&dir.join("tasks")).unwrap_or_default() {
-                // A thread that exited meanwhile is gone from the list anyway.
-                let _ = write_file(&parent.join("tasks"), &tid.to_string());
+        let deadline = Instant::now() + RELEASE_DEADLINE;
+        while dir.exists() {
+            if let Some(parent) = subtree_dir.parent() {
+                for tid in read_ids(&dir.join("tasks")).unwrap_or_default() {
+                    // A thread that exited meanwhile is gone from the list anyway.
+                    let _ = write_file(&parent.join("tasks"), &tid.to_string());
+                }
+            }
+            match remove_dir(&dir) {
+                Ok(()) => break,
+                Err(e) if e.is_busy() && Instant::now() < deadline => std::thread::yield_now(),
+                Err(e) => return Err(e),
             }
         }
-        remove_dir(&dir)?;
     }
     Ok(())
 }

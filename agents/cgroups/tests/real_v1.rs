@@ -325,3 +325,41 @@ fn each_group_of_agent_threads_gets_a_cgroup_of_its_own_and_leaves_it_with_the_s
         thread.join().unwrap();
     }
 }
+
+#[test]
+fn the_subtree_goes_even_while_a_placed_thread_keeps_starting_threads() {
+    use configbot_cgroups::AgentThreads;
+    use std::sync::Arc;
+    use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+    let t = Tree::new();
+    let place = t
+        .backend
+        .agent_threads(AgentThreads::Metering)
+        .unwrap()
+        .expect("v1 gives single threads a cgroup");
+    let stop = Arc::new(AtomicBool::new(false));
+    let started = Arc::new(AtomicUsize::new(0));
+    // As a data plane's runtime does: a thread in the group starts others,
+    // which begin in its cgroup, while the subtree is being removed.
+    let spawner = {
+        let (stop, started) = (stop.clone(), started.clone());
+        std::thread::spawn(move || {
+            place.place_current_thread().unwrap();
+            while !stop.load(Ordering::Relaxed) {
+                std::thread::spawn(|| std::thread::sleep(Duration::from_millis(2)));
+                started.fetch_add(1, Ordering::Relaxed);
+            }
+        })
+    };
+    wait_until(
+        "the placed thread to start threads",
+        Duration::from_secs(10),
+        Duration::from_millis(5),
+        || started.load(Ordering::Relaxed) > 100,
+    );
+    let removed = t.backend.remove_root();
+    stop.store(true, Ordering::Relaxed);
+    spawner.join().unwrap();
+    removed.unwrap();
+    assert!(!t.cpu_root.exists());
+}
