@@ -35,6 +35,15 @@ pub enum Probe {
     /// CPUs used by the node's cgroup.
     #[serde(rename_all = "camelCase")]
     CpuUsage { node: String },
+    /// How late `topic`'s messages arrive after the stamp in their header
+    /// (a type that starts with a `Header`; the nodes that pass a frame's
+    /// header on keep its camera's stamp): per sub-window, the largest of
+    /// the agent's latency classes (seconds) that one of its messages
+    /// exceeded, 0 when none did or none was stamped; over the whole window,
+    /// the same over all of them. A pipeline that falls behind shows here
+    /// before it drops a frame and its rate misses.
+    #[serde(rename_all = "camelCase")]
+    TopicLatency { topic: String },
 }
 
 /// The result of a [`MeasureRequest`].
@@ -53,11 +62,11 @@ pub struct MeasureReport {
 #[serde(rename_all = "camelCase")]
 pub struct ProbeSeries {
     pub probe: Probe,
-    /// One value per sub-window (Hz or CPUs).
+    /// One value per sub-window (Hz, CPUs or seconds of latency).
     pub values: Vec<f64>,
-    /// The value over the whole window (for a topic, refined by the arrivals
-    /// of the messages that bound its count: finer than the sub-windows'
-    /// mean for a slow topic).
+    /// The value over the whole window (for a topic's rate, refined by the
+    /// arrivals of the messages that bound its count: finer than the
+    /// sub-windows' mean for a slow topic; for a latency, its peak).
     pub mean: f64,
 }
 

@@ -72,6 +72,66 @@ impl std::fmt::Debug for ThreadHooks {
 pub struct MessageCount {
     pub messages: u64,
     pub last_arrival: Option<Instant>,
+    /// The stamped ones among them, by latency.
+    pub latency: LatencyCounts,
+}
+
+/// The latency classes (ms) a meter counts stamped messages in. A message's
+/// latency is its arrival (wall clock) minus the stamp in its header, which
+/// the nodes that pass a camera frame's header on keep: the time the frame
+/// took through them. Finer around a 30 Hz frame period (33 ms) and the
+/// few periods a node's queue holds, where a pipeline falls behind and then
+/// drops frames.
+pub const LATENCY_BOUNDS_MS: [u32; 12] = [10, 20, 33, 50, 67, 100, 133, 167, 200, 300, 500, 1000];
+
+/// Cumulative counts of a meter's stamped messages by latency: monotonic,
+/// like the message count, so two readings give the classes of the
+/// messages that arrived between them ([`LatencyCounts::peak_since`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct LatencyCounts {
+    /// Messages whose header carried a stamp.
+    pub stamped: u64,
+    /// `later_than[i]`: stamped messages later than [`LATENCY_BOUNDS_MS`]`[i]`.
+    pub later_than: [u64; LATENCY_BOUNDS_MS.len()],
+}
+
+impl LatencyCounts {
+    /// Counts one stamped message that arrived `latency_s` seconds after
+    /// its stamp (negative: a clock ahead of ours, counted as on time).
+    pub fn record(&mut self, latency_s: f64) {
+        self.stamped += 1;
+        let ms = latency_s * 1000.0;
+        for (n, &b) in self.later_than.iter_mut().zip(&LATENCY_BOUNDS_MS) {
+            if ms > f64::from(b) {
+                *n += 1;
+            }
+        }
+    }
+
+    /// The largest bound (seconds) that some message counted since
+    /// `earlier` was later than: a lower bound of their peak latency, 0 when
+    /// none was later than the first. `None` when no stamped message came
+    /// in between, or the counts went backwards (a new meter).
+    pub fn peak_since(&self, earlier: &LatencyCounts) -> Option<f64> {
+        if self.stamped <= earlier.stamped {
+            return None;
+        }
+        let mut peak = 0.0;
+        for ((now, before), &b) in self
+            .later_than
+            .iter()
+            .zip(&earlier.later_than)
+            .zip(&LATENCY_BOUNDS_MS)
+        {
+            if now < before {
+                return None;
+            }
+            if now > before {
+                peak = f64::from(b) / 1000.0;
+            }
+        }
+        Some(peak)
+    }
 }
 
 /// A backend of the data plane. Methods are cheap and non-blocking: IO runs
@@ -113,4 +173,45 @@ pub trait DataPlane: Send + Sync {
     /// The environment a node the agent starts needs to join this data plane
     /// (ROS 1: `ROS_MASTER_URI`); a node's own setting of a variable wins.
     fn node_env(&self) -> Vec<(String, String)>;
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_peak_between_two_readings_is_the_largest_bound_a_message_between_them_passed() {
+        let mut c = LatencyCounts::default();
+        c.record(0.005);
+        c.record(0.140);
+        let first = c;
+        assert_eq!(first.stamped, 2);
+        assert_eq!(
+            first.later_than[0], 1,
+            "only the 140 ms one is later than 10 ms"
+        );
+        assert_eq!(first.peak_since(&LatencyCounts::default()), Some(0.133));
+        c.record(0.030);
+        c.record(-0.002);
+        assert_eq!(
+            c.peak_since(&first),
+            Some(0.020),
+            "30 ms: later than 20, not 33"
+        );
+        let second = c;
+        c.record(0.002);
+        assert_eq!(
+            c.peak_since(&second),
+            Some(0.0),
+            "on time: below every bound"
+        );
+        assert_eq!(c.peak_since(&c), None, "nothing stamped in between");
+        c.record(5.0);
+        assert_eq!(c.peak_since(&second), Some(1.0), "past the last bound");
+        assert_eq!(
+            LatencyCounts::default().peak_since(&first),
+            None,
+            "went backwards"
+        );
+    }
 }

@@ -583,6 +583,62 @@ fn roscpp_relay_gets_live_adaptor_insertion_and_removal() {
 
 /// The periodic refresh (period injected: 1 s) notices a node that died
 /// without unregistering: its pid goes and a NodeChanged event says so.
+/// The meter counts a stamped type's messages by latency (arrival minus the
+/// header's stamp) and a type without a header not at all.
+#[test]
+fn the_meter_reads_how_late_stamped_messages_arrive() {
+    if !ros_available() {
+        return;
+    }
+    let a = start_agent(Duration::from_secs(30));
+    let _g = a.rt.enter();
+    let (stamped, plain) = (
+        format!("/{}", unique("stamped")),
+        format!("/{}", unique("plain")),
+    );
+    // Stamped 250 ms before they are sent.
+    let _s = a.env.script(
+        "stamped_talker.py",
+        &[&unique("st"), &stamped, "30", "0.25"],
+    );
+    let _p = a.env.script("talker.py", &[&unique("pt"), &plain, "30"]);
+    let flowing = |t: &str| a.dp.topic_messages(t).is_ok_and(|c| c.messages > 10);
+    wait_until("both topics metered", Duration::from_secs(20), POLL, || {
+        flowing(&stamped) && flowing(&plain)
+    });
+    let (s0, p0) = (
+        a.dp.topic_messages(&stamped).unwrap(),
+        a.dp.topic_messages(&plain).unwrap(),
+    );
+    wait_until(
+        "30 more stamped messages",
+        Duration::from_secs(10),
+        POLL,
+        || a.dp.topic_messages(&stamped).unwrap().messages > s0.messages + 30,
+    );
+    let (s1, p1) = (
+        a.dp.topic_messages(&stamped).unwrap(),
+        a.dp.topic_messages(&plain).unwrap(),
+    );
+    assert_eq!(
+        s1.latency.stamped - s0.latency.stamped,
+        s1.messages - s0.messages,
+        "every PointStamped is stamped: {s1:?}"
+    );
+    // 250 ms stamped: later than the 200 ms class; a busy test machine may
+    // hold one back for longer, not for another quarter second.
+    let peak = s1.latency.peak_since(&s0.latency);
+    assert!(
+        peak.is_some_and(|p| (0.2..=0.3).contains(&p)),
+        "peak {peak:?}: {s0:?} {s1:?}"
+    );
+    assert!(p1.messages > p0.messages);
+    assert_eq!(
+        p1.latency.stamped, 0,
+        "std_msgs/String has no header: {p1:?}"
+    );
+}
+
 #[test]
 fn periodic_refresh_notices_dead_nodes() {
     if !ros_available() {

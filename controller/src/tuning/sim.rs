@@ -482,6 +482,8 @@ impl NodeApi for SimRobot {
                             .copied()
                             .unwrap_or(0.0),
                         Probe::CpuUsage { node } => rates.cpu.get(node).copied().unwrap_or(0.0),
+                        // This robot's messages carry no stamps: never late.
+                        Probe::TopicLatency { .. } => 0.0,
                     };
                     let values: Vec<f64> = (0..windows)
                         .map(|w| steady * self.noise(start + w * sub, pi))

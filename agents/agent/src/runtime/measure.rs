@@ -13,15 +13,16 @@
 //! over a fixed window resolves one message (0.2 Hz in a 5 s trial, a fifth
 //! of a 1 Hz objective), while the messages counted between two readings
 //! arrived in the interval between the arrivals of the last message before
-//! each. The arithmetic is pure ([`series`]); the reading is in
-//! [`NodeRuntime::measure`].
+//! each. A topic's latency is read from the same meter's cumulative latency
+//! classes ([`latency_series`]). The arithmetic is pure ([`series`],
+//! [`latency_series`]); the reading is in [`NodeRuntime::measure`].
 
 use std::time::{Duration, Instant};
 
 use configbot_api::graph::EdgeId;
 use configbot_api::measure::{MeasureReport, MeasureRequest, Probe, ProbeSeries};
 use configbot_cgroups::NodeName;
-use configbot_dataplane::{DataPlane, MessageCount};
+use configbot_dataplane::{DataPlane, LatencyCounts, MessageCount};
 
 use super::NodeRuntime;
 use crate::error::{Error, Result};
@@ -53,13 +54,15 @@ enum Counter {
     Delivered(EdgeId),
     /// CPU nanoseconds used by a node's cgroup.
     Cpu(NodeName),
+    /// The latency classes of the messages received by the topic's meter.
+    Latency(String),
 }
 
 impl Counter {
     /// Units per count: messages → messages, ns → CPU-seconds.
     fn scale(&self) -> f64 {
         match self {
-            Counter::Topic(_) | Counter::Delivered(_) => 1.0,
+            Counter::Topic(_) | Counter::Delivered(_) | Counter::Latency(_) => 1.0,
             Counter::Cpu(_) => 1e-9,
         }
     }
@@ -67,12 +70,14 @@ impl Counter {
 
 /// One counter reading: which source (e.g. topic meter or adaptor), its
 /// value and, for a topic meter, when the last message it counted arrived
-/// (seconds from the window's start: negative before it).
+/// (seconds from the window's start: negative before it) and its messages'
+/// latency classes.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Counted {
     pub source: u8,
     pub count: u64,
     pub last_arrival: Option<f64>,
+    pub latency: Option<LatencyCounts>,
 }
 
 impl Counted {
@@ -82,6 +87,7 @@ impl Counted {
             source,
             count,
             last_arrival: None,
+            latency: None,
         }
     }
 
@@ -97,6 +103,7 @@ impl Counted {
             source: SRC_METER,
             count: c.messages,
             last_arrival: c.last_arrival.map(since),
+            latency: Some(c.latency),
         }
     }
 }
@@ -167,6 +174,27 @@ pub fn by_arrivals(readings: &[Reading], span: f64) -> Option<f64> {
     Some((n / (b - a)).clamp((n - 1.0) / span, (n + 1.0) / span))
 }
 
+/// Peak latencies per sub-window and over the whole window from a topic
+/// meter's readings (pure, see [`LatencyCounts::peak_since`]): a
+/// sub-window whose ends read the same meter gives the largest latency
+/// class one of its messages exceeded; one without stamped messages, or
+/// whose ends are missing or read different meters, gives 0 (nothing seen
+/// late).
+pub fn latency_series(readings: &[Reading]) -> (Vec<f64>, f64) {
+    let peak = |a: &Reading, b: &Reading| -> f64 {
+        match (a, b) {
+            (Some(a), Some(b)) if a.source == b.source => match (a.latency, b.latency) {
+                (Some(a), Some(b)) => b.peak_since(&a).unwrap_or(0.0),
+                _ => 0.0,
+            },
+            _ => 0.0,
+        }
+    };
+    let values: Vec<f64> = readings.windows(2).map(|w| peak(&w[0], &w[1])).collect();
+    let whole = values.iter().copied().fold(0.0, f64::max);
+    (values, whole)
+}
+
 /// The times to divide by (pure): each reading's measured time (seconds from
 /// the start), or its scheduled boundary when it came at most
 /// [`TIMER_SLACK`] after it.
@@ -228,6 +256,14 @@ impl NodeRuntime {
                     }
                     Counter::Cpu(n)
                 }
+                Probe::TopicLatency { topic } => {
+                    if self.data_plane().is_none() {
+                        return Err(Error::NoDataPlane {
+                            what: format!("latency of {topic}"),
+                        });
+                    }
+                    Counter::Latency(topic.clone())
+                }
                 Probe::TopicRate { topic, subscriber } => {
                     if self.data_plane().is_none() {
                         return Err(Error::NoDataPlane {
@@ -261,7 +297,10 @@ impl NodeRuntime {
         let times = snap(&times, &bounds);
         let mut out = Vec::with_capacity(counters.len());
         for ((probe, c), r) in req.probes.iter().zip(&counters).zip(&readings) {
-            let (values, mean) = series(&times, r, c.scale());
+            let (values, mean) = match c {
+                Counter::Latency(_) => latency_series(r),
+                _ => series(&times, r, c.scale()),
+            };
             if let Probe::TopicRate { topic, subscriber } = probe {
                 self.metrics_topic_rate(topic, subscriber.as_deref(), mean);
             }
@@ -289,7 +328,7 @@ impl NodeRuntime {
         let mut fresh: Vec<String> = Vec::new();
         for c in counters {
             let topic = match c {
-                Counter::Topic(t) => t,
+                Counter::Topic(t) | Counter::Latency(t) => t,
                 Counter::Delivered(e) => &e.topic,
                 Counter::Cpu(_) => continue,
             };
@@ -313,7 +352,7 @@ impl NodeRuntime {
                 .stats(n)
                 .ok()
                 .map(|s| Counted::new(SRC_CGROUP, s.usage_ns)),
-            Counter::Topic(t) => self
+            Counter::Topic(t) | Counter::Latency(t) => self
                 .data_plane()?
                 .topic_messages(t)
                 .ok()
@@ -373,9 +412,40 @@ mod tests {
                     source: SRC_METER,
                     count: by.len() as u64,
                     last_arrival: by.last().copied(),
+                    latency: None,
                 })
             })
             .collect()
+    }
+
+    #[test]
+    fn each_sub_window_reads_the_peak_latency_of_the_messages_that_arrived_in_it() {
+        let mut l = LatencyCounts::default();
+        let mut at = |latencies: &[f64], source: u8| -> Reading {
+            for &x in latencies {
+                l.record(x);
+            }
+            Some(Counted {
+                latency: Some(l),
+                ..Counted::new(source, l.stamped)
+            })
+        };
+        let readings = vec![
+            at(&[], SRC_METER),
+            at(&[0.030, 0.031], SRC_METER),
+            at(&[0.150, 0.040], SRC_METER),
+            at(&[], SRC_METER),
+            at(&[0.5], SRC_ADAPTOR),
+            None,
+        ];
+        let (values, whole) = latency_series(&readings);
+        assert_eq!(values, vec![0.02, 0.133, 0.0, 0.0, 0.0]);
+        assert_eq!(whole, 0.133, "the other meter's 500 ms is not this one's");
+        let unstamped = [
+            Some(Counted::new(SRC_METER, 3)),
+            Some(Counted::new(SRC_METER, 9)),
+        ];
+        assert_eq!(latency_series(&unstamped), (vec![0.0], 0.0));
     }
 
     #[test]
