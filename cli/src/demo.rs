@@ -253,9 +253,9 @@ pub async fn measure_defs(
     defs: &[MetricDef],
     secs: u64,
 ) -> anyhow::Result<MeasureReport> {
-    Ok(robot
-        .measure(&measure::request(defs, &[], secs * 1000, 1000))
-        .await?)
+    let mut req = measure::request(defs, &[], secs * 1000, 1000);
+    req.probes.extend(measure::latency_probes(defs));
+    Ok(robot.measure(&req).await?)
 }
 
 /// Waits until every `defs` topic delivers messages (the stack is up).
@@ -263,7 +263,9 @@ pub async fn wait_for_flow(robot: &dyn Robot, defs: &[MetricDef], timeout: Durat
     let deadline = Instant::now() + timeout;
     while Instant::now() < deadline {
         if let Ok(r) = measure_defs(robot, defs, 1).await
-            && r.series.iter().all(|s| s.mean > 0.0)
+            && defs
+                .iter()
+                .all(|d| r.series.iter().any(|s| s.probe == d.probe && s.mean > 0.0))
         {
             return true;
         }
@@ -470,10 +472,31 @@ pub fn print_eval(label: &str, defs: &[MetricDef], r: &MeasureReport) {
         })
         .collect();
     println!(
-        "    {label}: constraint satisfaction {:.1}%  ({})",
+        "    {label}: constraint satisfaction {:.1}%  ({}){}",
         e.satisfaction * 100.0,
-        parts.join(", ")
+        parts.join(", "),
+        latency_text(&measure::latency_peaks(defs, r))
     );
+}
+
+/// "; latency peak corners-rate 133 ms (2 windows ≥ 100 ms)" for the core
+/// metrics whose messages were seen late (pure); empty when none were.
+pub fn latency_text(peaks: &std::collections::BTreeMap<String, Vec<f64>>) -> String {
+    let parts: Vec<String> = peaks
+        .iter()
+        .filter_map(|(name, v)| {
+            let peak = v.iter().copied().fold(0.0, f64::max);
+            (peak > 0.0).then(|| {
+                let late = v.iter().filter(|&&x| x >= 0.1).count();
+                format!("{name} {:.0} ms ({late} windows ≥ 100 ms)", peak * 1000.0)
+            })
+        })
+        .collect();
+    if parts.is_empty() {
+        String::new()
+    } else {
+        format!("; latency peak {}", parts.join(", "))
+    }
 }
 
 /// The before/after table (pure).
@@ -575,6 +598,20 @@ pub fn histogram_chart(core: &MetricDef, before: &MeasureReport, after: &Measure
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn latency_is_printed_only_for_metrics_seen_late() {
+        let peaks: std::collections::BTreeMap<String, Vec<f64>> = [
+            ("corners-rate".to_owned(), vec![0.033, 0.133, 0.1]),
+            ("edges-rate".to_owned(), vec![0.0, 0.0]),
+        ]
+        .into();
+        assert_eq!(
+            latency_text(&peaks),
+            "; latency peak corners-rate 133 ms (2 windows ≥ 100 ms)"
+        );
+        assert_eq!(latency_text(&Default::default()), "");
+    }
 
     #[test]
     fn every_example_loads_with_this_program_as_its_command() {

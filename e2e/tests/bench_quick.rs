@@ -352,6 +352,15 @@ fn quick_bench_on_a_real_stack_writes_every_row_and_the_oracle() {
         for (k, v) in metrics {
             secs(v, &format!("{method} {k}"));
         }
+        if method == "launch-default" {
+            // The feature tracker passes its camera's stamp on; under the
+            // default's contention (it misses 25 Hz) its frames come late.
+            let late = r["coreLatency"]["corners-rate"]
+                .as_array()
+                .unwrap_or_else(|| panic!("no latency of the core topic: {r}"));
+            assert_eq!(late.len(), r["coreSeries"].as_array().unwrap().len());
+            assert!(late.iter().any(|v| v.as_f64().unwrap() > 0.0), "{late:?}");
+        }
         let tuned = method.starts_with("c");
         assert_eq!(r["tuning"].is_object(), tuned, "{method}: {r}");
         if tuned {

@@ -141,6 +141,12 @@ pub struct MethodResult {
     pub tuning: Option<TuningCost>,
     /// Per-second values of the first core metric (for the histogram).
     pub core_series: Vec<f64>,
+    /// Per core metric whose messages carry a stamp: per second, the peak
+    /// latency (s, a lower bound: the agent's latency classes) of its
+    /// messages after their stamp. Empty for stacks whose topics carry none
+    /// and in files from before it was measured.
+    #[serde(default, skip_serializing_if = "std::collections::BTreeMap::is_empty")]
+    pub core_latency: std::collections::BTreeMap<String, Vec<f64>>,
 }
 
 /// What a tuning run cost. Seconds count from applying the PerformanceSpec
@@ -604,6 +610,10 @@ fn result(
         .map(|s| s.values.clone())
         .unwrap_or_default();
     print_eval(method, defs, r);
+    let core_latency = measure::latency_peaks(defs, r)
+        .into_iter()
+        .filter(|(_, v)| v.iter().any(|&x| x > 0.0))
+        .collect();
     MethodResult {
         stack: stack.into(),
         method: method.into(),
@@ -612,6 +622,7 @@ fn result(
         config,
         tuning,
         core_series,
+        core_latency,
     }
 }
 
@@ -891,6 +902,7 @@ mod tests {
             config: Value::Null,
             tuning,
             core_series: Vec::new(),
+            core_latency: Default::default(),
         };
         let c = tuning_cost(&settled_status(), &[4.0, 9.4, 14.0, 19.2], 30.0);
         let t = table(&[row("default", None), row("configbot", Some(c))]);

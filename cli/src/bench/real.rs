@@ -681,6 +681,7 @@ mod tests {
             config: Value::Null,
             tuning: None,
             core_series: Vec::new(),
+            core_latency: Default::default(),
         }
     }
 

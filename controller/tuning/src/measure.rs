@@ -186,6 +186,46 @@ pub fn request(
     }
 }
 
+/// The latency probes of the core metrics that rate a topic as a plain
+/// subscriber sees it (pure): how late their messages arrive after the
+/// stamp in their header, the sign of a core pipeline falling behind before
+/// its rate misses (see [`Probe::TopicLatency`]).
+pub fn latency_probes(defs: &[MetricDef]) -> Vec<Probe> {
+    defs.iter()
+        .filter(|d| d.core)
+        .filter_map(|d| match &d.probe {
+            Probe::TopicRate {
+                topic,
+                subscriber: None,
+            } => Some(Probe::TopicLatency {
+                topic: topic.clone(),
+            }),
+            _ => None,
+        })
+        .collect()
+}
+
+/// Each core metric's latency peaks per window in a report that measured
+/// [`latency_probes`] (pure), by metric name; metrics without one are left out.
+pub fn latency_peaks(defs: &[MetricDef], report: &MeasureReport) -> BTreeMap<String, Vec<f64>> {
+    defs.iter()
+        .filter(|d| d.core)
+        .filter_map(|d| {
+            let Probe::TopicRate {
+                topic,
+                subscriber: None,
+            } = &d.probe
+            else {
+                return None;
+            };
+            let p = Probe::TopicLatency {
+                topic: topic.clone(),
+            };
+            Some((d.name.clone(), series(report, &p)?.to_vec()))
+        })
+        .collect()
+}
+
 /// The series of `probe` in a report: its 1 s windows and its whole-window
 /// value, the agent's, which for a topic is refined by the arrivals of the
 /// messages that bound its count (the agent's `measure`), so a 1 Hz
@@ -558,7 +598,11 @@ pub fn concat(a: &MeasureReport, b: &MeasureReport) -> MeasureReport {
     let total = out.duration_ms.max(1) as f64;
     for s in &mut out.series {
         if let Some(t) = b.series.iter().find(|t| t.probe == s.probe) {
-            s.mean = (s.mean * a.duration_ms as f64 + t.mean * b.duration_ms as f64) / total;
+            s.mean = match s.probe {
+                // A latency's whole-window value is its peak.
+                Probe::TopicLatency { .. } => s.mean.max(t.mean),
+                _ => (s.mean * a.duration_ms as f64 + t.mean * b.duration_ms as f64) / total,
+            };
             s.values.extend_from_slice(&t.values);
         }
     }
@@ -569,6 +613,48 @@ pub fn concat(a: &MeasureReport, b: &MeasureReport) -> MeasureReport {
 mod tests {
     use super::*;
     use configbot_api::measure::ProbeSeries;
+
+    #[test]
+    fn core_topics_get_a_latency_probe_and_their_peaks_are_read_by_metric() {
+        let mut delivered = def("delivered", true, true, 10.0);
+        delivered.probe = Probe::TopicRate {
+            topic: "/t".into(),
+            subscriber: Some("/s".into()),
+        };
+        let defs = [
+            def("corners", true, true, 25.0),
+            def("flow", false, true, 4.0),
+            delivered,
+        ];
+        let probes = latency_probes(&defs);
+        assert_eq!(
+            probes,
+            vec![Probe::TopicLatency {
+                topic: "/corners".into()
+            }],
+            "core, and as a plain subscriber sees it"
+        );
+        let report = |values: Vec<f64>| MeasureReport {
+            started_unix_ms: 0,
+            duration_ms: 2000,
+            sub_window_ms: 1000,
+            series: vec![ProbeSeries {
+                probe: probes[0].clone(),
+                mean: values.iter().copied().fold(0.0, f64::max),
+                values,
+            }],
+        };
+        let (a, b) = (report(vec![0.033, 0.133]), report(vec![0.2, 0.05]));
+        let peaks = latency_peaks(&defs, &a);
+        assert_eq!(peaks.len(), 1);
+        assert_eq!(peaks["corners"], vec![0.033, 0.133]);
+        let both = concat(&a, &b);
+        assert_eq!(both.series[0].values, vec![0.033, 0.133, 0.2, 0.05]);
+        assert_eq!(
+            both.series[0].mean, 0.2,
+            "a latency's whole window is its peak"
+        );
+    }
 
     fn def(name: &str, core: bool, at_least: bool, target: f64) -> MetricDef {
         MetricDef {
