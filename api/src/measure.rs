@@ -41,7 +41,9 @@ pub enum Probe {
     /// the agent's latency classes (seconds) that one of its messages
     /// exceeded, 0 when none did or none was stamped; over the whole window,
     /// the same over all of them. A pipeline that falls behind shows here
-    /// before it drops a frame and its rate misses.
+    /// before it drops a frame and its rate misses. Stamps are taken as
+    /// wall-clock time: on a robot that runs on simulated time
+    /// (`/use_sim_time`) the values mean nothing.
     #[serde(rename_all = "camelCase")]
     TopicLatency { topic: String },
 }
