@@ -48,9 +48,6 @@ impl FrameSink for Sink {
     }
     fn on_frame(&self, api: &str, frame: Frame) {
         let now = Instant::now();
-        let wall = SystemTime::now()
-            .duration_since(UNIX_EPOCH)
-            .map_or(0.0, |d| d.as_secs_f64());
         let t = now.duration_since(self.epoch).as_secs_f64();
         if let Ok(mut a) = self.arrivals.lock() {
             a.window.record(t, frame.len());
@@ -59,6 +56,10 @@ impl FrameSink for Sink {
             if a.stamped.contains(api)
                 && let Some(stamp) = header_stamp(&frame)
             {
+                // The wall clock only for a stamped type's messages.
+                let wall = SystemTime::now()
+                    .duration_since(UNIX_EPOCH)
+                    .map_or(0.0, |d| d.as_secs_f64());
                 a.count.latency.record(wall - stamp);
             }
         }

@@ -191,39 +191,32 @@ pub fn request(
 /// stamp in their header, the sign of a core pipeline falling behind before
 /// its rate misses (see [`Probe::TopicLatency`]).
 pub fn latency_probes(defs: &[MetricDef]) -> Vec<Probe> {
-    defs.iter()
-        .filter(|d| d.core)
-        .filter_map(|d| match &d.probe {
-            Probe::TopicRate {
-                topic,
-                subscriber: None,
-            } => Some(Probe::TopicLatency {
-                topic: topic.clone(),
-            }),
-            _ => None,
-        })
-        .collect()
+    defs.iter().filter_map(latency_probe).collect()
 }
 
 /// Each core metric's latency peaks per window in a report that measured
 /// [`latency_probes`] (pure), by metric name; metrics without one are left out.
 pub fn latency_peaks(defs: &[MetricDef], report: &MeasureReport) -> BTreeMap<String, Vec<f64>> {
     defs.iter()
-        .filter(|d| d.core)
         .filter_map(|d| {
-            let Probe::TopicRate {
-                topic,
-                subscriber: None,
-            } = &d.probe
-            else {
-                return None;
-            };
-            let p = Probe::TopicLatency {
-                topic: topic.clone(),
-            };
+            let p = latency_probe(d)?;
             Some((d.name.clone(), series(report, &p)?.to_vec()))
         })
         .collect()
+}
+
+/// The latency probe of a core metric that rates a topic as a plain
+/// subscriber sees it; `None` for any other metric.
+fn latency_probe(d: &MetricDef) -> Option<Probe> {
+    match &d.probe {
+        Probe::TopicRate {
+            topic,
+            subscriber: None,
+        } if d.core => Some(Probe::TopicLatency {
+            topic: topic.clone(),
+        }),
+        _ => None,
+    }
 }
 
 /// The series of `probe` in a report: its 1 s windows and its whole-window

@@ -257,19 +257,11 @@ impl NodeRuntime {
                     Counter::Cpu(n)
                 }
                 Probe::TopicLatency { topic } => {
-                    if self.data_plane().is_none() {
-                        return Err(Error::NoDataPlane {
-                            what: format!("latency of {topic}"),
-                        });
-                    }
+                    self.need_data_plane(|| format!("latency of {topic}"))?;
                     Counter::Latency(topic.clone())
                 }
                 Probe::TopicRate { topic, subscriber } => {
-                    if self.data_plane().is_none() {
-                        return Err(Error::NoDataPlane {
-                            what: format!("topic rate of {topic}"),
-                        });
-                    }
+                    self.need_data_plane(|| format!("topic rate of {topic}"))?;
                     match subscriber {
                         None => Counter::Topic(topic.clone()),
                         Some(s) => Counter::Delivered(EdgeId {
@@ -340,6 +332,14 @@ impl NodeRuntime {
         while !fresh.is_empty() && Instant::now() < deadline {
             fresh.retain(|t| dp.topic_messages(t).is_ok_and(|c| c.messages == 0));
             tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+    }
+
+    /// An error naming `what` needed it when the node has no data plane.
+    fn need_data_plane(&self, what: impl FnOnce() -> String) -> Result<()> {
+        match self.data_plane() {
+            Some(_) => Ok(()),
+            None => Err(Error::NoDataPlane { what: what() }),
         }
     }
 
