@@ -55,7 +55,7 @@ fn new_app_is_detected_and_known_context_reapplies_fast() {
     assert!(!ctx_a.contains("extra"), "{ctx_a}");
     robot.wait_event(name, "ProfileSaved", Duration::from_secs(5), |_| true);
 
-    // Start /hog6 as a user would, outside ConfigBot.
+    // Start /hog6 as a user would, outside ConfigBot (and its cgroup).
     let trials_in_a = robot.events_with(name, "Trial").len();
     let before_exec = now_ms();
     let hog = ChildGuard(
@@ -76,6 +76,7 @@ fn new_app_is_detected_and_known_context_reapplies_fast() {
             .spawn()
             .expect("start /hog6"),
     );
+    robot.move_to_user(&hog.0);
     let (changed, seen_ms) =
         robot.wait_event(name, "ContextChanged", Duration::from_secs(10), |_| true);
     let msg = changed["message"].as_str().unwrap_or("").to_string();

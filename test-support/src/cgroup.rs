@@ -54,6 +54,12 @@ impl CpuCgroup {
         &self.dir
     }
 
+    /// Where the test process was before [`CpuCgroup::join`] (None before
+    /// it joined).
+    pub fn home(&self) -> Option<&Path> {
+        self.home.as_deref()
+    }
+
     /// Writes a control file, e.g. `cpu.shares` or `cpu.cfs_quota_us`.
     pub fn set(&self, file: &str, value: impl std::fmt::Display) -> std::io::Result<()> {
         std::fs::write(self.dir.join(file), value.to_string())
