@@ -172,8 +172,15 @@ pub enum Candidate {
     Library { profile: Box<ConfigProfile> },
     /// A config of this run that held its verification (`base`, a trial or
     /// a back-off), with the knobs of its worst objectives raised; `step`
-    /// counts the lifts from it, from 1 (see [`outcome::lift`]).
-    Lift { base: Box<Candidate>, step: u32 },
+    /// counts the lifts from it, from 1 (see [`outcome::lift`]); `halved`
+    /// counts how often this lift's factors were halved (their square
+    /// root taken) after it missed.
+    Lift {
+        base: Box<Candidate>,
+        step: u32,
+        #[serde(default, skip_serializing_if = "is_zero")]
+        halved: u32,
+    },
 }
 
 impl Candidate {
@@ -186,13 +193,18 @@ impl Candidate {
             Candidate::Library { profile } => {
                 format!("library profile {}", profile.metadata.name)
             }
-            Candidate::Lift { base, step } => format!(
-                "{} with its worst objectives raised{}",
+            Candidate::Lift { base, step, halved } => format!(
+                "{} with its worst objectives raised{}{}",
                 base.text(),
                 if *step > 1 {
                     format!(" ({step} times)")
                 } else {
                     String::new()
+                },
+                match halved {
+                    0 => String::new(),
+                    1 => ", the step halved".to_string(),
+                    n => format!(", the step halved {n} times"),
                 }
             ),
         }
@@ -208,6 +220,10 @@ impl Candidate {
             Candidate::Baseline | Candidate::Library { .. } => None,
         }
     }
+}
+
+fn is_zero(n: &u32) -> bool {
+    *n == 0
 }
 
 /// A config that held its verification and was then lifted

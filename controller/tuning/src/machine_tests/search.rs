@@ -1722,6 +1722,7 @@ fn a_held_config_is_lifted_where_only_its_worst_objective_gains() {
     let lift = Candidate::Lift {
         base: Box::new(Candidate::Trial { index: 0 }),
         step: 1,
+        halved: 0,
     };
     assert_eq!(
         lifting.state,
@@ -1743,8 +1744,40 @@ fn a_held_config_is_lifted_where_only_its_worst_objective_gains() {
         (status.best_trial, status.best_trial_backoff),
         (Some(0), None)
     );
-    // Missed: back to trial 0's config, applied and monitored.
-    let (back, out) = verify_det(lifting.clone(), &env, &BAD, 9.0);
+    // Missed: tried again with the factor's square root (3.75 → 1.94),
+    // then its fourth root (1.39), each from trial 0's config ...
+    let mut missed = lifting.clone();
+    for (halved, cpu) in [(1, 1.936), (2, 1.392)] {
+        let (next, out) = verify_det(missed, &env, &BAD, 9.0);
+        assert_eq!(
+            reasons(&out),
+            vec!["VerificationFailed", "LiftingObjectives"]
+        );
+        assert!(
+            event_text(&out[0]).ends_with("; trying the step halved")
+                && event_text(&out[1])
+                    .contains("raised by the square root of the step that missed"),
+            "{out:?}"
+        );
+        let State::VerifyApply { candidate, config } = &next.state else {
+            panic!("{:?}", next.state)
+        };
+        assert_eq!(
+            *candidate,
+            Candidate::Lift {
+                base: Box::new(Candidate::Trial { index: 0 }),
+                step: 1,
+                halved,
+            }
+        );
+        let x = next.knobs.from_config(config);
+        assert!((x[0] - cpu).abs() < 0.01 && x[1] == 1.5, "{x:?}");
+        assert_eq!(next.held.len(), 1, "one config to go back to");
+        missed = next;
+    }
+    // ... and when that misses too: back to trial 0's config, applied and
+    // monitored.
+    let (back, out) = verify_det(missed, &env, &BAD, 9.0);
     assert_eq!(reasons(&out), vec!["VerificationFailed", "<save>"]);
     assert!(
         event_text(&out[0]).contains("applying trial 0 again"),
