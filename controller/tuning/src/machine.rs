@@ -4,7 +4,8 @@
 //! current config) → trials (drain, apply, settle, profile; early stop of a
 //! clearly infeasible trial as a censored observation) → Verify the best
 //! (drain, apply, settle, measure; a failing best trial is backed off first;
-//! a held one is lifted, and restored when the lift misses) or apply the
+//! a held one is lifted, the lift tried again halved when it misses, and
+//! the held one restored when that misses too) or apply the
 //! safest (Unsat) → Monitor; a familiar context re-applies its
 //! library config and verifies it; Remediating stops or freezes non-core apps
 //! (and records their inputs) when tuning is not allowed and a constraint is
