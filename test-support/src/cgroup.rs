@@ -31,6 +31,11 @@ pub fn unique(prefix: &str, sep: char) -> String {
 /// How long [`CpuCgroup`]'s drop goes on killing and removing.
 pub const REMOVE_TIMEOUT: Duration = Duration::from_secs(10);
 
+/// Moves process `pid` (all its threads) into the cgroup at `dir`.
+pub fn add_to(dir: &Path, pid: u32) -> std::io::Result<()> {
+    std::fs::write(dir.join("cgroup.procs"), pid.to_string())
+}
+
 /// A cgroup `<cpu mount>/<name>` in the v1 `cpu` hierarchy, made for one
 /// test. On drop the test process goes back to the cgroup it came from
 /// (if it joined), every other process still inside is killed and the
@@ -67,7 +72,7 @@ impl CpuCgroup {
 
     /// Moves process `pid` (all its threads) into this cgroup.
     pub fn add(&self, pid: u32) -> std::io::Result<()> {
-        self.set("cgroup.procs", pid)
+        add_to(&self.dir, pid)
     }
 
     /// Moves this test process in; drop moves it back to where it was (in

@@ -1072,10 +1072,11 @@ pub fn verified(
             step,
             halved,
         } => {
-            let halfway = (halved < LIFT_HALVINGS)
-                .then(|| run.held.last().cloned())
-                .flatten()
-                .and_then(|h| lift_from(run, env, defs, &h, (**base).clone(), step, halved + 1));
+            let halfway = run
+                .held
+                .last()
+                .filter(|_| halved < LIFT_HALVINGS)
+                .and_then(|h| lift_from(run, env, defs, h, (**base).clone(), step, halved + 1));
             let then = match (&halfway, run.held.last()) {
                 (Some(_), _) => "trying the step halved".to_string(),
                 (None, Some(h)) => format!("applying {} again", h.candidate.text()),
@@ -1259,14 +1260,7 @@ fn lift_from(
     let reach = if halved == 0 {
         format!("to reach {} times that", super::knobs::TRIM_HEADROOM)
     } else {
-        format!(
-            "by the square root of the step that missed{}",
-            if halved > 1 {
-                format!(" ({halved} times)")
-            } else {
-                String::new()
-            }
-        )
+        "by the square root of the step that missed".to_string()
     };
     let event = normal(
         Reason::LiftingObjectives,

@@ -22,7 +22,7 @@ use std::time::{Duration, Instant};
 
 use configbot_cgroups::{CgroupBackend, Layout, SubtreeRoot, V1Backend};
 use configbot_manifests::Phase;
-use configbot_test_support::cgroup::{remove_subtree, remove_tree};
+use configbot_test_support::cgroup::{add_to, remove_subtree, remove_tree};
 use configbot_test_support::{CpuCgroup, free_port, try_wait_until};
 use serde_json::Value;
 
@@ -199,8 +199,7 @@ impl Robot {
     /// loop that is to detect it (a 1.2 s detection in CI, 30 ms otherwise).
     pub fn move_to_user(&self, child: &Child) {
         if let Some(home) = self.ctl.as_ref().and_then(|c| c.home()) {
-            std::fs::write(home.join("cgroup.procs"), child.id().to_string())
-                .expect("move to the test's own cgroup");
+            add_to(home, child.id()).expect("move to the test's own cgroup");
         }
     }
 

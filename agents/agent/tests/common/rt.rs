@@ -97,6 +97,21 @@ impl Drop for Proc {
 /// The bag size cap of the runtimes under test, in MB.
 pub const RECORDING_MAX_MB: u64 = 2;
 
+/// Whether `e` or any error under it is an `AddrInUse` I/O error.
+fn addr_in_use(e: &(dyn std::error::Error + 'static)) -> bool {
+    let mut cur = Some(e);
+    while let Some(err) = cur {
+        if err
+            .downcast_ref::<std::io::Error>()
+            .is_some_and(|io| io.kind() == std::io::ErrorKind::AddrInUse)
+        {
+            return true;
+        }
+        cur = err.source();
+    }
+    false
+}
+
 /// Owns one runtime under test with everything it created.
 pub struct RtEnv {
     pub root: String,
@@ -164,14 +179,26 @@ impl RtEnv {
         monitor: Option<Preference>,
         stack: StackSpec,
     ) -> NodeRuntime {
-        let opts = RuntimeOptions {
-            settings: self.settings(),
-            data_plane: ros.then(|| self.ros_options()),
-            monitor,
+        // `free_port` probed the master's port a moment ago; whatever else
+        // runs on the machine may have bound it since. Such a start is
+        // tried again on a new port (a few times), any other error fails.
+        let mut tries = 0;
+        let rt = loop {
+            let opts = RuntimeOptions {
+                settings: self.settings(),
+                data_plane: ros.then(|| self.ros_options()),
+                monitor: monitor.clone(),
+            };
+            match NodeRuntime::start(Box::new(v1_backend(&self.root)), opts, stack.clone()).await {
+                Ok(rt) => break rt,
+                Err(e) if ros && tries < 3 && addr_in_use(&e) => {
+                    tries += 1;
+                    eprintln!("{} was taken ({e}); trying a new port", self.master_uri);
+                    self.master_uri = format!("http://localhost:{}/", free_port());
+                }
+                Err(e) => panic!("the runtime did not start: {e:?}"),
+            }
         };
-        let rt = NodeRuntime::start(Box::new(v1_backend(&self.root)), opts, stack)
-            .await
-            .unwrap();
         self.rt = Some(rt.clone());
         rt
     }
