@@ -215,10 +215,6 @@ vocabulary! {
         /// for them raised; or such a lift gave no more objective and the
         /// config it raised is applied again.
         LiftingObjectives,
-        /// A config held after another verification of the run failed: it
-        /// is applied with its non-core knobs cut, a margin for the windows
-        /// its record could not show.
-        KeepingMargin,
         /// A config failed its verification.
         VerificationFailed,
         /// A verification missed in bursts: the core nodes are weighted

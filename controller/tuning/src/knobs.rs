@@ -567,21 +567,6 @@ impl KnobSpace {
         })
     }
 
-    /// The point `x` with every knob that only restricts a non-core app and
-    /// works for some objective cut to `keep` (below 1) of its value, not
-    /// below its minimum (pure): the margin a held config is applied with
-    /// (`outcome::HELD_MARGIN`). Knobs of apps that feed no metric are at
-    /// their minimum already. `None` when nothing would change.
-    pub fn margined(&self, x: &[f64], keep: f64) -> Option<Vec<f64>> {
-        self.moved(x, |k, v| {
-            if k.restricts_non_core && !k.feeds.is_empty() {
-                (v * keep).clamp(k.min.min(v), v)
-            } else {
-                v
-            }
-        })
-    }
-
     /// Back-offs of `x` with a fraction of its own for each knob that only
     /// restricts a non-core app (pure): every combination of the fractions
     /// `0, 1/(n−1), …, 1` of the way from the knob's minimum to its value in

@@ -958,7 +958,7 @@ pub fn verified(
                 ),
             ));
             run.lift_ended = true;
-            return restore(run, env, defs, false, out);
+            return restore(run, env, defs, out);
         }
         out.push(normal(
             Reason::Satisfied,
@@ -972,12 +972,6 @@ pub fn verified(
         ));
         if let Some(next) = lift(run, env, defs, &candidate, &config, &eval, out) {
             return next;
-        }
-        let near = !run.rejected.is_empty() || !run.failed_verifications.is_empty();
-        if let Some((margined, event)) = near.then(|| margin(run, &candidate, &config)).flatten() {
-            out.push(event);
-            adopt(run, env, defs, candidate, &margined, eval, out);
-            return State::RestoreApply { config: margined };
         }
         adopt(run, env, defs, candidate, &config, eval, out);
         return State::Monitor {
@@ -1101,7 +1095,7 @@ pub fn verified(
                 return drain_first(run, env, verify);
             }
             run.lift_ended = true;
-            restore(run, env, defs, true, out)
+            restore(run, env, defs, out)
         }
         Candidate::Baseline => {
             if env.tuning_allowed {
@@ -1292,70 +1286,12 @@ fn lift_from(
 }
 
 /// Goes back to the config the last lift raised (`Run::held`), drained
-/// first, and settles on it as its verification measured it; with a
-/// [`margin`] when the lift `missed` (the boundary lies just above it).
-fn restore(
-    run: &mut Run,
-    env: &Env<'_>,
-    defs: &[MetricDef],
-    missed: bool,
-    out: &mut Vec<Output>,
-) -> State {
+/// first, and settles on it as its verification measured it.
+fn restore(run: &mut Run, env: &Env<'_>, defs: &[MetricDef], out: &mut Vec<Output>) -> State {
     let Some(h) = run.held.pop() else {
         return finish(run, env, defs, out);
     };
-    let mut config = run.knobs.weigh(h.config);
-    if let Some((margined, event)) = missed.then(|| margin(run, &h.candidate, &config)).flatten() {
-        out.push(event);
-        config = margined;
-    }
+    let config = run.knobs.weigh(h.config);
     adopt(run, env, defs, h.candidate, &config, h.eval, out);
     drain_first(run, env, State::RestoreApply { config })
-}
-
-/// The share of its value each knob that only restricts a non-core app
-/// keeps in a config that held its verification after another of the
-/// run's verifications missed ([`margin`]). A record of
-/// `tuning.recordSeconds` (120 s) without a miss shows a miss rate per
-/// window of at most about 2 % (90 % confidence), while a minute at the
-/// bar allows none in 60 (about 0.2 %); and the config that holds after
-/// others missed near it is the luckiest of them, not the safest. On the
-/// real nodelet stack (sessions 39–43, 200 trials of five windows) the
-/// windows missed grew with the detectors' input: 0–2 % at up to 1.1 Hz,
-/// 6.7 % at 1.1–1.3 Hz, 16 % at 1.3–2 Hz; session 43's seed 3 held
-/// 120 s at 1.21 Hz and then missed 3 of the bench's 60 windows. A cut
-/// of 15 % moves such a config a bin down for 15 % of its objective.
-pub const HELD_MARGIN: f64 = 0.85;
-
-/// `config`, held by `held`, with each knob that only restricts a
-/// non-core app and works for an objective cut to [`HELD_MARGIN`] of its
-/// value (pure): the config to settle on and its event. `None` when no
-/// knob would change. A smaller non-core input or CPU limit takes no more
-/// from the core services (the space is monotone), so it is applied
-/// without another verification, and the constraint monitor watches it.
-fn margin(
-    run: &Run,
-    held: &Candidate,
-    config: &ResourceConfig,
-) -> Option<(ResourceConfig, Output)> {
-    let x = run.knobs.from_config(config);
-    let y = run.knobs.margined(&x, HELD_MARGIN)?;
-    let cut: Vec<String> = run
-        .knobs
-        .knobs
-        .iter()
-        .zip(x.iter().zip(&y))
-        .filter(|(_, (a, b))| b < a)
-        .map(|(k, (a, b))| format!("{} {a:.2} -> {b:.2}", k.name))
-        .collect();
-    let event = normal(
-        Reason::KeepingMargin,
-        format!(
-            "{} held after another verification of this run missed: the config that holds among near ones is the luckiest, and its record cannot show the minute at the bar, so it is applied with each non-core knob at {:.0} % of its value: {}",
-            held.text(),
-            HELD_MARGIN * 100.0,
-            cut.join(", ")
-        ),
-    );
-    Some((run.knobs.weigh(run.knobs.to_config(&y)), event))
 }

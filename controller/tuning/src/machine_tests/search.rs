@@ -1517,7 +1517,6 @@ fn drive(
             State::TrialApply { .. }
             | State::VerifyApply { .. }
             | State::UnsatApply { .. }
-            | State::RestoreApply { .. }
             | State::Drain { applied: false, .. } => Input::Applied,
             State::Drain { config, .. } | State::TrialProfile { config, .. } => {
                 measured(trial(config))
@@ -1695,63 +1694,6 @@ fn verify_det(run: Run, env: &Env<'_>, cmd: &[f64], det: f64) -> (Run, Vec<Outpu
     step(run, report(cmd, det), env)
 }
 
-/// A config that holds after another verification of the run missed is
-/// applied with each knob that only restricts a non-core app and feeds an
-/// objective at [`outcome::HELD_MARGIN`] of its value (core knobs as they were),
-/// without measuring it again, and monitored; the first config to hold is
-/// monitored as its verification measured it.
-#[test]
-fn a_config_held_after_a_miss_is_applied_with_a_margin() {
-    let (st, sp) = (stack(), spec(1.0, 5));
-    let env = env(&st, &sp);
-    let mut run = with_two_trials(&env);
-    run.knobs.knobs[0].feeds = vec!["det".into()];
-    run.state = finish(&mut run, &env, &env.defs(), &mut Vec::new());
-    let (first, out) = verify_det(run.clone(), &env, &OK, 9.0);
-    assert_eq!(reasons(&out), vec!["Satisfied", "<save>"]);
-    assert!(
-        matches!(&first.state, State::Monitor { satisfied: true, config } if first.knobs.from_config(config) == [1.9, 1.5]),
-        "{:?}",
-        first.state
-    );
-    // Trial 1 misses; its back-off holds, and settles with the margin.
-    let (off, out) = verify_det(run, &env, &BAD, 9.0);
-    assert_eq!(reasons(&out)[0], "VerificationFailed", "{out:?}");
-    let State::VerifyApply {
-        candidate: Candidate::Backoff(_),
-        config,
-    } = &off.state
-    else {
-        panic!("{:?}", off.state)
-    };
-    let x = off.knobs.from_config(config);
-    assert!(x[0] < 1.9 && x[1] == 1.5, "{x:?}");
-    let (held, out) = verify_det(off, &env, &OK, 9.0);
-    assert_eq!(reasons(&out), vec!["Satisfied", "KeepingMargin", "<save>"]);
-    assert!(
-        event_text(&out[1]).contains(&format!(
-            "cpu:/detector {:.2} -> {:.2}",
-            x[0],
-            x[0] * outcome::HELD_MARGIN
-        )),
-        "{out:?}"
-    );
-    let State::RestoreApply { config } = &held.state else {
-        panic!("{:?}", held.state)
-    };
-    let y = held.knobs.from_config(config);
-    assert!(
-        (y[0] - x[0] * outcome::HELD_MARGIN).abs() < 1e-3 && y[1] == 1.5,
-        "{y:?}"
-    );
-    let (monitored, _) = step(held.clone(), Input::Applied, &env);
-    assert!(
-        matches!(&monitored.state, State::Monitor { satisfied: true, config: c } if c == config),
-        "{:?}",
-        monitored.state
-    );
-}
-
 /// A held config whose worst objective sits below the next one up is
 /// verified again with the knobs that work only for that objective raised
 /// (here the detector's CPU: detection 4 of 10 against the images' cap,
@@ -1833,26 +1775,18 @@ fn a_held_config_is_lifted_where_only_its_worst_objective_gains() {
         assert_eq!(next.held.len(), 1, "one config to go back to");
         missed = next;
     }
-    // ... and when that misses too: back to trial 0's config with a margin
-    // (the boundary lies just above it): the detector's CPU at 85 %, the
-    // planner's (core) as it was; applied and monitored.
+    // ... and when that misses too: back to trial 0's config, applied and
+    // monitored.
     let (back, out) = verify_det(missed, &env, &BAD, 9.0);
-    assert_eq!(
-        reasons(&out),
-        vec!["VerificationFailed", "KeepingMargin", "<save>"]
-    );
+    assert_eq!(reasons(&out), vec!["VerificationFailed", "<save>"]);
     assert!(
-        event_text(&out[0]).contains("applying trial 0 again")
-            && event_text(&out[1])
-                .contains("trial 0 held after another verification of this run missed")
-            && event_text(&out[1]).ends_with("at 85 % of its value: cpu:/detector 1.00 -> 0.85"),
+        event_text(&out[0]).contains("applying trial 0 again"),
         "{out:?}"
     );
-    let margined = back.knobs.to_config(&[0.85, 1.5]);
     assert_eq!(
         back.state,
         State::RestoreApply {
-            config: margined.clone()
+            config: held.clone()
         }
     );
     assert_eq!(back.applied, Some(Candidate::Trial { index: 0 }));
@@ -1861,7 +1795,7 @@ fn a_held_config_is_lifted_where_only_its_worst_objective_gains() {
         back.state,
         State::Monitor {
             satisfied: true,
-            config: margined
+            config: held.clone()
         }
     );
     assert!(back.held.is_empty() && back.lift_ended);
