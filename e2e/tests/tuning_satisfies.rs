@@ -46,8 +46,10 @@ fn tuning_satisfies_a_violating_stack() {
     let baseline = &st["baseline"];
     let base_rate = baseline["values"]["cmd-vel-rate"].as_f64().unwrap();
     let base_sat = baseline["satisfaction"].as_f64().unwrap();
+    // The default must violate: its mean rate under the target and at least
+    // half of its windows off it (exactly half was seen once in a CI run).
     assert!(
-        base_sat < 0.5 && base_rate < 36.0,
+        base_sat <= 0.5 && base_rate < 36.0,
         "the default config must violate: baseline {baseline}"
     );
     assert_eq!(st["knobs"].as_array().map(Vec::len), Some(5), "{st}");
