@@ -692,6 +692,41 @@ mod tests {
         ]
     }
 
+    /// The oracles committed under `docs/oracles/<class>/` stay usable by
+    /// `--oracle-from`: one per real stack, each for today's manifests (a
+    /// change to a real stack's manifests fails here until it is measured
+    /// again). The machine class is the file's own: this runs on any machine.
+    #[test]
+    fn committed_oracles_are_of_todays_manifests() {
+        let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../docs/oracles");
+        let mut classes = 0;
+        for class in std::fs::read_dir(&root).expect("docs/oracles") {
+            let dir = class.unwrap().path();
+            if !dir.is_dir() {
+                continue;
+            }
+            classes += 1;
+            for name in STACKS {
+                let path = dir.join(format!("oracle-{name}.json"));
+                let text = std::fs::read_to_string(&path)
+                    .unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+                let o: Oracle = serde_json::from_str(&text)
+                    .unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+                let (stack, spec) = example(name).unwrap();
+                let digest = library::stack_digest(&stack.spec, &spec.spec);
+                let machine = o
+                    .machine
+                    .clone()
+                    .expect("a committed oracle names its machine");
+                assert!(o.stack_digest.is_some(), "{}", path.display());
+                if let Err(e) = reusable(&o, name, &digest, &machine) {
+                    panic!("{}: {e}", path.display());
+                }
+            }
+        }
+        assert!(classes > 0, "no machine class under {}", root.display());
+    }
+
     #[test]
     fn real_expands_to_every_real_stack() {
         let s = expand(&["basic-nav".into(), "real".into()]);
