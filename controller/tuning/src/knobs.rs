@@ -163,6 +163,19 @@ pub fn adaptor_knob_name(topic: &str, subscriber: &str) -> String {
     format!("rate:{topic}>{subscriber}")
 }
 
+/// The most CPU a node's knob may give it: the spec's bound for the node,
+/// else its bound for every node, else (and at most) the robot's CPUs.
+pub fn cpu_max(spec: &PerformanceSpecSpec, node: &str, cpus: f64) -> f64 {
+    let cpu = &spec.knobs.cpu;
+    cpu.nodes
+        .iter()
+        .find(|b| b.node == node)
+        .and_then(|o| o.max)
+        .or(cpu.max)
+        .unwrap_or(cpus)
+        .min(cpus)
+}
+
 /// Derive the knobs. `running` is the set of nodes alive on the robot (from
 /// the graph); `rates` the measured rate of each topic; `cpus` the robot's CPUs.
 pub fn derive(
@@ -190,11 +203,7 @@ pub fn derive(
             continue;
         }
         let min = over.and_then(|o| o.min).unwrap_or(cpu.min);
-        let max = over
-            .and_then(|o| o.max)
-            .or(cpu.max)
-            .unwrap_or(cpus)
-            .min(cpus);
+        let max = cpu_max(spec, &node.name, cpus);
         let name = cpu_knob_name(&node.name);
         if min.partial_cmp(&max) != Some(std::cmp::Ordering::Less) {
             return Err(KnobError::EmptyBounds { name, min, max });

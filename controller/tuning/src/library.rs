@@ -196,10 +196,59 @@ pub fn prior_observations(
         .collect()
 }
 
+/// The config that drains the non-core apps before a library config is
+/// verified — what `KnobSpace::drain_point` is to a trial (see
+/// `super::settle`), taken from the config itself, since a run that reuses a
+/// profile derives no knobs: every adaptor into a non-core node at the
+/// spec's minimum rate (no new work) and every non-core node that feeds a
+/// metric at its CPU bound (finish the old work fast); core limits, weights
+/// and the nodes held at their minimum as in `config`. `None` when `config`
+/// holds back no non-core input: nothing piles up, nothing to drain. Pure.
+///
+/// A profile was learned from drained states, but it is re-applied after
+/// whatever ran before. The timeline's switch back to Basic-NAV re-applied
+/// its profile onto a detector that Terrain-NAV's config had starved
+/// (0.37 CPU, frames still in flight): with the detector's input opened,
+/// its threads kept both CPUs, `/cmd_vel` read 20 Hz for 20 s, and the
+/// profile was judged failed — the same config read 38 Hz from a drained
+/// state moments later.
+pub fn drain_before(
+    config: &ResourceConfig,
+    stack: &RobotStackSpec,
+    spec: &PerformanceSpecSpec,
+    graph: &Graph,
+    cpus: f64,
+) -> Option<ResourceConfig> {
+    let non_core: BTreeMap<&str, bool> = stack
+        .nodes()
+        .map(|(app, n)| (n.name.as_str(), !app.core))
+        .collect();
+    let is_non_core = |node: &str| non_core.get(node).copied().unwrap_or(false);
+    if !config.adaptors.iter().any(|a| is_non_core(&a.subscriber)) {
+        return None;
+    }
+    let feeds = super::knobs::feeds_a_metric(graph, spec);
+    let mut drain = config.clone();
+    for a in drain
+        .adaptors
+        .iter_mut()
+        .filter(|a| is_non_core(&a.subscriber))
+    {
+        a.rate_hz = a.rate_hz.min(spec.knobs.adaptors.min_rate_hz);
+    }
+    for (node, cpu) in drain.cpu.iter_mut() {
+        if is_non_core(node) && feeds.contains(node) {
+            *cpu = cpu.max(super::knobs::cpu_max(spec, node, cpus));
+        }
+    }
+    Some(drain)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use configbot_api::graph::NodeInfo;
+    use configbot_manifests::AdaptorRate;
 
     fn stack() -> RobotStack {
         serde_json::from_value(serde_json::json!({
@@ -277,5 +326,90 @@ mod tests {
         assert!(find(&stored, "other-spec", &ctx).is_none());
         let m = configbot_manifests::decode_and_validate(&stored[0]);
         assert!(m.is_ok(), "a saved profile is a valid manifest: {m:?}");
+    }
+
+    #[test]
+    fn a_library_config_is_drained_into_like_a_trial_before_it_is_verified() {
+        // /camera -> /image -> /detector -> /detections (a metric); /logger
+        // takes /image too but feeds no metric (held at its minimum).
+        let st: RobotStack = serde_json::from_value(serde_json::json!({
+            "apiVersion": API_VERSION, "kind": "RobotStack", "metadata": {"name": "s"},
+            "spec": {"apps": [
+                {"name": "nav", "core": true, "nodes": [{"name": "/planner", "run": {"command": "x"}}]},
+                {"name": "det", "nodes": [{"name": "/camera", "run": {"command": "x"}},
+                                          {"name": "/detector", "run": {"command": "x"}},
+                                          {"name": "/logger", "run": {"command": "x"}}]}]}
+        }))
+        .unwrap();
+        let sp: configbot_manifests::PerformanceSpec = serde_json::from_value(serde_json::json!({
+            "apiVersion": API_VERSION, "kind": "PerformanceSpec", "metadata": {"name": "p"},
+            "spec": {"stackRef": {"name": "s"}, "metrics": [
+                {"name": "cmd", "app": "nav", "source": {"topicRate": {"topic": "/cmd_vel"}}, "target": {"atLeast": 35}},
+                {"name": "det", "app": "det", "source": {"topicRate": {"topic": "/detections"}}, "target": {"atLeast": 3}}],
+              "knobs": {"cpu": {"max": 1.5}, "adaptors": {"minRateHz": 0.5}}}
+        }))
+        .unwrap();
+        let mut g = graph(&["/planner", "/camera", "/detector", "/logger"]);
+        for (topic, publisher, subscribers) in [
+            ("/image", "/camera", vec!["/detector", "/logger"]),
+            ("/detections", "/detector", vec![]),
+            ("/cmd_vel", "/planner", vec![]),
+        ] {
+            g.topics.insert(
+                topic.into(),
+                configbot_api::graph::TopicInfo {
+                    name: topic.into(),
+                    msg_type: "m/M".into(),
+                    publishers: [publisher.to_string()].into(),
+                    subscribers: subscribers.into_iter().map(String::from).collect(),
+                },
+            );
+        }
+        let rate = |topic: &str, subscriber: &str, rate_hz: f64| AdaptorRate {
+            topic: topic.into(),
+            subscriber: subscriber.into(),
+            rate_hz,
+        };
+        let learned = ResourceConfig {
+            cpu: BTreeMap::from([
+                ("/detector".to_string(), 0.37),
+                ("/logger".to_string(), 0.05),
+                ("/planner".to_string(), 1.2),
+            ]),
+            cpu_weight: BTreeMap::from([("/planner".to_string(), 10_000)]),
+            cpu_period_micros: Some(20_000),
+            adaptors: vec![
+                rate("/image", "/detector", 4.36),
+                rate("/image", "/logger", 0.5),
+            ],
+        };
+        let drain = drain_before(&learned, &st.spec, &sp.spec, &g, 2.0).unwrap();
+        assert_eq!(drain.cpu["/detector"], 1.5, "freed up to the spec's bound");
+        assert_eq!(
+            drain.cpu["/logger"], 0.05,
+            "feeds no metric: stays at its minimum"
+        );
+        assert_eq!(drain.cpu["/planner"], 1.2, "core limits as learned");
+        assert_eq!(drain.cpu_weight, learned.cpu_weight);
+        assert_eq!(drain.cpu_period_micros, Some(20_000));
+        assert_eq!(
+            drain.adaptors,
+            vec![
+                rate("/image", "/detector", 0.5),
+                rate("/image", "/logger", 0.5)
+            ],
+            "no new work for the non-core apps"
+        );
+        // Nothing held back from a non-core app: nothing piled up.
+        let open = ResourceConfig {
+            adaptors: vec![],
+            ..learned.clone()
+        };
+        assert_eq!(drain_before(&open, &st.spec, &sp.spec, &g, 2.0), None);
+        let core_edge = ResourceConfig {
+            adaptors: vec![rate("/image", "/planner", 5.0)],
+            ..learned
+        };
+        assert_eq!(drain_before(&core_edge, &st.spec, &sp.spec, &g, 2.0), None);
     }
 }

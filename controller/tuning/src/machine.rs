@@ -7,7 +7,7 @@
 //! a held one is lifted, the lift tried again halved when it misses, and
 //! the held one restored when that misses too) or apply the
 //! safest (Unsat) → Monitor; a familiar context re-applies its
-//! library config and verifies it; Remediating stops or freezes non-core apps
+//! library config and verifies it (after a drain, as a trial's); Remediating stops or freezes non-core apps
 //! (and records their inputs) when tuning is not allowed and a constraint is
 //! violated with no known config.
 //!
@@ -908,9 +908,22 @@ pub fn step(mut run: Run, input: Input, env: &Env<'_>) -> (Run, Vec<Output>) {
                         ),
                     ));
                     let config = p.spec.config.clone();
-                    State::VerifyApply {
+                    let drain =
+                        library::drain_before(&config, &env.stack.spec, env.spec, &graph, env.cpus)
+                            .filter(|_| settle::drains(env.spec.tuning.settle_seconds));
+                    let verify = State::VerifyApply {
                         candidate: Candidate::Library { profile: p },
                         config,
+                    };
+                    // Measured from a drained state, as it was learned.
+                    match drain {
+                        Some(config) => State::Drain {
+                            config,
+                            then: Box::new(verify),
+                            applied: false,
+                            so_far: None,
+                        },
+                        None => verify,
                     }
                 }
                 known => {

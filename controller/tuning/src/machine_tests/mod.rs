@@ -691,6 +691,62 @@ fn relearning_after_a_violation_starts_cold_after_a_failed_library_config_warm()
     }
 }
 
+#[test]
+fn a_library_config_is_verified_from_a_drained_state() {
+    let (st, sp) = (stack(), spec(4.0, 5));
+    let env = env(&st, &sp);
+    let mut p = profile();
+    p.spec.config = cfg();
+    p.spec
+        .config
+        .adaptors
+        .push(configbot_manifests::AdaptorRate {
+            topic: "/image".into(),
+            subscriber: "/detector".into(),
+            rate_hz: 4.0,
+        });
+    let learned = p.spec.config.clone();
+    let known = |p: &ConfigProfile| Input::Observed {
+        graph: graph(),
+        context: ctx(),
+        known: Some(Box::new(p.clone())),
+    };
+    let (run, out) = step(with(observe(false)), known(&p), &env);
+    assert_eq!(reasons(&out), vec!["LibraryHit"]);
+    let State::Drain { config, then, .. } = &run.state else {
+        panic!("{:?}", run.state)
+    };
+    assert_eq!(
+        config.cpu["/detector"], 2.0,
+        "the detector finishes its backlog"
+    );
+    assert_eq!(config.adaptors[0].rate_hz, 0.5, "and gets no new frames");
+    assert!(matches!(
+        &**then,
+        State::VerifyApply { candidate: Candidate::Library { .. }, config } if *config == learned
+    ));
+    assert_eq!(run.phase(), configbot_manifests::Phase::Satisfied);
+    let (run, _) = step(run, Input::Applied, &env);
+    let (run, _) = step(run, report(&[20.0, 38.0], 0.0), &env);
+    assert_eq!(name(&run.state), "Drain", "core still moving");
+    let (run, _) = step(run, report(&[39.0], 0.0), &env);
+    assert!(matches!(
+        run.state,
+        State::VerifyApply {
+            candidate: Candidate::Library { .. },
+            ..
+        }
+    ));
+    // Short settles (tests, simulations) and configs that hold back no
+    // non-core input verify at once.
+    let sp1 = spec(1.0, 5);
+    let (run, _) = step(with(observe(false)), known(&p), &self::env(&st, &sp1));
+    assert_eq!(name(&run.state), "VerifyApply");
+    p.spec.config.adaptors.clear();
+    let (run, _) = step(with(observe(false)), known(&p), &env);
+    assert_eq!(name(&run.state), "VerifyApply");
+}
+
 fn env<'a>(st: &'a RobotStack, sp: &'a PerformanceSpec) -> Env<'a> {
     Env {
         stack: st,
