@@ -393,19 +393,9 @@ pub fn load_oracles(
     let here = Machine::here();
     let mut out = std::collections::BTreeMap::new();
     for name in stacks.iter().filter(|s| is_real(s)) {
-        let path = dir.join(format!("oracle-{name}.json"));
-        let text = std::fs::read_to_string(&path)
-            .map_err(|e| anyhow::anyhow!("--oracle-from: reading {}: {e}", path.display()))?;
-        let mut o: Oracle = serde_json::from_str(&text)
-            .map_err(|e| anyhow::anyhow!("--oracle-from: {}: {e}", path.display()))?;
-        let (stack, spec) = example(name)?;
-        let digest = library::stack_digest(&stack.spec, &spec.spec);
-        let notes = reusable(&o, name, &digest, &here).map_err(|e| {
-            anyhow::anyhow!(
-                "--oracle-from: {} cannot stand for this run's: {e}",
-                path.display()
-            )
-        })?;
+        let (mut o, notes) = read_oracle(dir, name, Some(&here))
+            .map_err(|e| anyhow::anyhow!("--oracle-from: {e}"))?;
+        let path = oracle_path(dir, name);
         for n in notes {
             println!("    {}: {n}", path.display());
         }
@@ -413,6 +403,34 @@ pub fn load_oracles(
         out.insert(name.clone(), o);
     }
     Ok(out)
+}
+
+fn oracle_path(dir: &Path, stack: &str) -> std::path::PathBuf {
+    dir.join(format!("oracle-{stack}.json"))
+}
+
+/// Reads `dir`'s oracle of `stack` and checks that it may stand for one of
+/// today's manifests on a machine of `class`'s class ([`reusable`]; the
+/// machine the file names when `None`): the oracle and the check's notes.
+fn read_oracle(
+    dir: &Path,
+    stack: &str,
+    class: Option<&Machine>,
+) -> anyhow::Result<(Oracle, Vec<String>)> {
+    let path = oracle_path(dir, stack);
+    let text = std::fs::read_to_string(&path)
+        .map_err(|e| anyhow::anyhow!("reading {}: {e}", path.display()))?;
+    let o: Oracle =
+        serde_json::from_str(&text).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+    let (st, spec) = example(stack)?;
+    let digest = library::stack_digest(&st.spec, &spec.spec);
+    let class = match class.or(o.machine.as_ref()) {
+        Some(m) => m.clone(),
+        None => anyhow::bail!("{} names no machine to check it against", path.display()),
+    };
+    let notes = reusable(&o, stack, &digest, &class)
+        .map_err(|e| anyhow::anyhow!("{} cannot stand for this run's: {e}", path.display()))?;
+    Ok((o, notes))
 }
 
 /// The points the oracle measures (pure): the two corners of the knob
@@ -707,21 +725,12 @@ mod tests {
             }
             classes += 1;
             for name in STACKS {
-                let path = dir.join(format!("oracle-{name}.json"));
-                let text = std::fs::read_to_string(&path)
-                    .unwrap_or_else(|e| panic!("{}: {e}", path.display()));
-                let o: Oracle = serde_json::from_str(&text)
-                    .unwrap_or_else(|e| panic!("{}: {e}", path.display()));
-                let (stack, spec) = example(name).unwrap();
-                let digest = library::stack_digest(&stack.spec, &spec.spec);
-                let machine = o
-                    .machine
-                    .clone()
-                    .expect("a committed oracle names its machine");
-                assert!(o.stack_digest.is_some(), "{}", path.display());
-                if let Err(e) = reusable(&o, name, &digest, &machine) {
-                    panic!("{}: {e}", path.display());
-                }
+                let (o, _) = read_oracle(&dir, name, None).unwrap_or_else(|e| panic!("{e}"));
+                assert!(
+                    o.machine.is_some() && o.stack_digest.is_some(),
+                    "{}: a committed oracle names its machine and manifests",
+                    dir.display()
+                );
             }
         }
         assert!(classes > 0, "no machine class under {}", root.display());
