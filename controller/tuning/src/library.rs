@@ -219,11 +219,12 @@ pub fn drain_before(
     graph: &Graph,
     cpus: f64,
 ) -> Option<ResourceConfig> {
-    let non_core: BTreeMap<&str, bool> = stack
+    let non_core: std::collections::BTreeSet<&str> = stack
         .nodes()
-        .map(|(app, n)| (n.name.as_str(), !app.core))
+        .filter(|(app, _)| !app.core)
+        .map(|(_, n)| n.name.as_str())
         .collect();
-    let is_non_core = |node: &str| non_core.get(node).copied().unwrap_or(false);
+    let is_non_core = |node: &str| non_core.contains(node);
     if !config.adaptors.iter().any(|a| is_non_core(&a.subscriber)) {
         return None;
     }
