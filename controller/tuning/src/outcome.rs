@@ -1075,7 +1075,6 @@ pub fn verified(
             let halfway = run
                 .held
                 .last()
-                .filter(|_| halved < LIFT_HALVINGS)
                 .and_then(|h| lift_from(run, env, defs, h, (**base).clone(), step, halved + 1));
             let then = match (&halfway, run.held.last()) {
                 (Some(_), _) => "trying the step halved".to_string(),
@@ -1216,22 +1215,29 @@ fn lift(
     Some(drain_first(run, env, verify))
 }
 
-/// How many times a lift that missed is tried again from the config it
-/// raised with its factors halved (their square root: the geometric
-/// midpoint of the held knobs and the missed ones) before the run goes back
-/// to that config. A lift is one step along a line from a config known to
-/// hold, so the point between it and a miss is the nearest untried one.
-/// Measured on real-nodelets (2026-11-28, seed 3): a held config at
-/// objective 0.167 (the vision manager's input at 0.5 Hz) was lifted to
-/// 1.13 Hz, missed 4 windows of 30 and gave way; this machine's oracle
-/// holds at 0.257 (0.77 Hz), between the two.
-pub const LIFT_HALVINGS: u32 = 2;
+/// The least step a lift takes: some knob it raises grows by at least
+/// this factor, or the lift is not verified. A lift that missed is tried
+/// again from the config it raised with its factors halved (their square
+/// root: the geometric midpoint of the held knobs and the missed ones), so
+/// the run bisects the line from the config known to hold towards the
+/// miss, and stops once the next point would be within this of the held
+/// one: a step that small buys less objective than the trials' noise
+/// ([`super::search::NEAR_BEST`] of a capped objective) and costs a
+/// verification. Measured on real-nodelets (2026-11-28, seed 3): a held
+/// config at objective 0.167 (the vision manager's input at 0.5 Hz) was
+/// lifted to 1.13 Hz, missed 4 windows of 30 and gave way; this machine's
+/// oracle holds at 0.257 (0.77 Hz), between the two. With a fixed two
+/// halvings (sessions 43–46), seed 2 of session 46 held at 1.03 Hz after
+/// lifts to 2.62, 1.64 and 1.30 Hz missed, where the oracle held at 1.2 Hz:
+/// the next two points of the bisection (1.16 and 1.09 Hz) were never
+/// measured.
+pub const LIFT_MIN_STEP: f64 = 1.05;
 
 /// The lift of `held` ([`measure::lift`] on its measured means, the knobs
 /// that work only for its worst objectives raised by the plan's factors,
 /// each factor's square root taken `halved` times): its event and the
 /// verification to apply (pure). `None` when nothing is to be lifted or
-/// nothing would change.
+/// no knob would grow by [`LIFT_MIN_STEP`].
 fn lift_from(
     run: &Run,
     env: &Env<'_>,
@@ -1247,7 +1253,11 @@ fn lift_from(
         *f = f.powf(root);
     }
     let x = run.knobs.from_config(&held.config);
-    let y = run.knobs.lifted(&x, &plan.factors)?;
+    let y = run.knobs.lifted(&x, &plan.factors).filter(|y| {
+        y.iter()
+            .zip(&x)
+            .any(|(b, a)| b > a && *b >= a * LIFT_MIN_STEP)
+    })?;
     let raised: Vec<String> = run
         .knobs
         .knobs

@@ -475,8 +475,19 @@ pub(crate) fn search_on(run: &mut Run, env: &Env<'_>, out: &mut Vec<Output>) -> 
 /// `then` (applying a trial's config, verifying a config of this run's
 /// knobs, or going back to one that held), after a drain of the non-core
 /// apps when the spec's settle is adaptive and some adaptor feeds a
-/// non-core app (see [`settle`]).
+/// non-core app (see [`settle`]). A verification of the config the run's
+/// last trial has just measured goes straight to measuring
+/// ([`continues_last_trial`]).
 pub(crate) fn drain_first(run: &Run, env: &Env<'_>, then: State) -> State {
+    if let State::VerifyApply { candidate, config } = &then
+        && continues_last_trial(run, candidate, config)
+    {
+        return State::Verify {
+            candidate: candidate.clone(),
+            config: config.clone(),
+            so_far: None,
+        };
+    }
     if !settle::drains(env.spec.tuning.settle_seconds) {
         return then;
     }
@@ -498,6 +509,27 @@ pub(crate) fn drain_first(run: &Run, env: &Env<'_>, then: State) -> State {
         },
         None => then,
     }
+}
+
+/// Whether verifying `candidate` at `config` continues the run's last
+/// measurement (pure): the candidate is the last trial, measured whole, and
+/// `config` is that trial's config, still applied (`Run::current`; every
+/// apply since would have changed it). Its trial was measured from a
+/// drained state after its settle, so draining, applying and settling it
+/// again would only repeat the way there; the verification measures on from
+/// where the trial ended, in new windows of its own (the trial's windows are
+/// not counted again: they are the ones its objective was chosen by).
+/// Measured on Basic-NAV (`./x demo`, 2026-12-01): 16 s from the capped
+/// trial's end to the verification's first 10 s, of which the drain, the
+/// apply and the settle took 6.
+pub fn continues_last_trial(run: &Run, candidate: &Candidate, config: &ResourceConfig) -> bool {
+    let Candidate::Trial { index } = candidate else {
+        return false;
+    };
+    *index + 1 == run.trials.len()
+        && run.trials[*index].config == *config
+        && !run.trials[*index].censored
+        && run.current == *config
 }
 
 /// The optimizer stops when no config's constrained expected improvement of

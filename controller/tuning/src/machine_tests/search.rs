@@ -995,7 +995,27 @@ fn a_run_whose_objectives_are_all_capped_stops_early_and_verifies() {
     let (run, out) = baseline_then_first_trial(&env, &BAD, report(&OK, 10.0));
     assert_eq!(reasons(&out), vec!["Trial", "ObjectivesCapped"]);
     assert_eq!(run.trials.len(), 1, "one trial of 20");
-    assert_verifies_trial_as_measured(&run, 0);
+    // Its config is applied and was just measured: the verification
+    // measures on, in new windows, without a drain, an apply or a settle.
+    assert_eq!(
+        run.state,
+        State::Verify {
+            candidate: Candidate::Trial { index: 0 },
+            config: run.trials[0].config.clone(),
+            so_far: None,
+        }
+    );
+    assert_eq!(
+        effect(&run, &env),
+        Effect::Measure(measure::request(&env.defs(), &[], 10_000, 1000)),
+        "two trials' length of its own"
+    );
+    // Had another config been applied since, it is applied again first.
+    let mut moved = run.clone();
+    moved.current = ResourceConfig::default();
+    let mut out = Vec::new();
+    moved.state = finish(&mut moved, &env, &env.defs(), &mut out);
+    assert_verifies_trial_as_measured(&moved, 0);
 }
 
 #[test]
@@ -1067,10 +1087,12 @@ fn a_trial_near_the_boundary_is_measured_longer_not_discarded() {
     let end = finish(&mut longer, &env, &env.defs(), &mut out);
     assert_eq!(
         end,
-        State::VerifyApply {
+        State::Verify {
             candidate: Candidate::Trial { index: 0 },
-            config: longer.trials[0].config.clone()
-        }
+            config: longer.trials[0].config.clone(),
+            so_far: None,
+        },
+        "the corner is still applied: measured on"
     );
     assert!(out.is_empty(), "{out:?}");
     // A corner that missed one window of ten but mostly held is near the
@@ -1151,7 +1173,11 @@ fn with_every_knob_pinned_the_pinned_config_is_measured_before_a_verdict() {
         vec!["Trial", "ObjectivesCapped"],
         "no objectives"
     );
-    assert_eq!(name(&run.state), "VerifyApply");
+    assert_eq!(
+        name(&run.state),
+        "Verify",
+        "the pinned config, still applied"
+    );
 }
 
 /// A run whose trials had windows both on and off target verifies its pick
@@ -1745,9 +1771,11 @@ fn a_held_config_is_lifted_where_only_its_worst_objective_gains() {
         (Some(0), None)
     );
     // Missed: tried again with the factor's square root (3.75 → 1.94),
-    // then its fourth root (1.39), each from trial 0's config ...
+    // then its 4th, 8th and 16th roots (1.39, 1.18, 1.09), each from trial
+    // 0's config, while the step still raises the CPU by LIFT_MIN_STEP
+    // (the 32nd root, 1.04, would not) ...
     let mut missed = lifting.clone();
-    for (halved, cpu) in [(1, 1.936), (2, 1.392)] {
+    for (halved, cpu) in [(1, 1.936), (2, 1.392), (3, 1.180), (4, 1.086)] {
         let (next, out) = verify_det(missed, &env, &BAD, 9.0);
         assert_eq!(
             reasons(&out),
