@@ -533,6 +533,11 @@ pub struct Run {
     /// ([`measure::judge_by_windows`]).
     #[serde(default)]
     pub bursty: bool,
+    /// Windows missed, so far in this run, by measurements that missed in
+    /// bursts ([`outcome::bursts`]): the run is bursty once they reach
+    /// [`outcome::BURST_EVIDENCE`].
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub burst_windows: u32,
     /// How many trials had failed verification (`rejected.len()`) when the
     /// search last went on after a failure (see `search::search_on`): it
     /// goes on once per failure, then the best unrejected trial is verified.
@@ -595,6 +600,7 @@ impl Run {
             edges: Vec::new(),
             failed_verifications: Vec::new(),
             bursty: false,
+            burst_windows: 0,
             searched_on: 0,
             held: Vec::new(),
             lift_ended: false,

@@ -505,6 +505,9 @@ pub struct Evaluation {
     /// Objective means, in metric order (non-core metrics only).
     pub objectives: Vec<f64>,
     pub satisfaction: f64,
+    /// Windows in which some core constraint missed its target.
+    #[serde(default)]
+    pub missed: u32,
     pub objective: Option<f64>,
     /// Every constraint's robust value meets its target.
     pub feasible: bool,
@@ -536,9 +539,11 @@ pub fn evaluate(defs: &[MetricDef], report: &MeasureReport, s: Scalarization) ->
             objectives.push(mean);
         }
     }
+    let missed = windows_ok(defs, report).iter().filter(|ok| !**ok).count();
     Evaluation {
         objective: scalarize(defs, &means, s),
         satisfaction: satisfaction(defs, report),
+        missed: u32::try_from(missed).unwrap_or(u32::MAX),
         means,
         constraints,
         worst,

@@ -764,12 +764,29 @@ pub fn bursts(defs: &[MetricDef], eval: &measure::Evaluation) -> bool {
             .all(|d| eval.means.get(&d.name).is_some_and(|&m| d.holds(m)))
 }
 
-/// Marks the run bursty (`Run::bursty`: its verifications must hold a
-/// longer record) and weights the run's core nodes when `eval`, a complete
-/// measurement of `what` (a trial, or a verification's candidate), missed
-/// in bursts ([`bursts`]) and the run is not weighted yet: from now on every config
+/// Windows a run's measurements must have missed in bursts ([`bursts`]),
+/// together, before the run counts as bursty and weights its core nodes:
+/// the weight holds for the rest of the run and costs the non-core apps
+/// CPU whenever a core node wants it, while one window under target with
+/// every mean on it is what a measurement's ordinary spread gives now and
+/// then (the 2.33·sd bound predicts about one in a hundred). A second
+/// window, in the same measurement or a later one, shows the dips recur.
+/// Measured on Basic-NAV: in sessions 35 and 46 and in a `./x demo` of
+/// 2026-12-01 a capped config (detection 4.3 Hz) missed one window of ten,
+/// the run weighted on it, and its detector fell to 1.35, 1.4 and 3.5 Hz
+/// under the weight (136–216 s to Monitoring against 85–105 s when that
+/// window held); on real-two-paths the configs that weighted runs missed
+/// 11 of 90 windows unweighted.
+pub const BURST_EVIDENCE: u32 = 2;
+
+/// Counts the windows `eval`, a complete measurement of `what` (a trial, or
+/// a verification's candidate), missed when it missed in bursts
+/// ([`bursts`]; `Run::burst_windows`); once they reach [`BURST_EVIDENCE`],
+/// marks the run bursty (`Run::bursty`: its verifications must hold a
+/// longer record) and weights the run's core nodes if it is not weighted
+/// yet: from now on every config
 /// of the run gives them [`super::knobs::CORE_WEIGHT`]
-/// ([`KnobSpace::weighted`]). Returns whether it did. The trials measured
+/// ([`KnobSpace::weighted`]). Returns whether it weighted them. The trials measured
 /// before stay as measured (a weight only helps the core nodes, so a trial
 /// that held still holds). Weighting only on this evidence keeps a stack
 /// whose core targets are missed on average, or not at all, unweighted: on
@@ -784,6 +801,10 @@ pub fn weigh_on_bursts(
     out: &mut Vec<Output>,
 ) -> bool {
     if !bursts(defs, eval) {
+        return false;
+    }
+    run.burst_windows = run.burst_windows.saturating_add(eval.missed.max(1));
+    if run.burst_windows < BURST_EVIDENCE {
         return false;
     }
     run.bursty = true;

@@ -447,10 +447,12 @@ fn a_bursty_run_verifies_a_config_over_two_clean_minutes_stopping_at_the_first_m
 
 /// A verification that misses windows while every core mean holds (the
 /// non-core apps burst; the core nodes are not short of CPU) weights the
-/// core nodes: the same trial is verified again with them at
-/// [`knobs::CORE_WEIGHT`], and every config after it is weighted, its
-/// back-offs included; the unweighted failure is forgotten. A verification
-/// that misses on average backs off without weights.
+/// core nodes once the run has missed [`outcome::BURST_EVIDENCE`] windows
+/// so (one window alone fails the verification as any miss does): the same
+/// trial is verified again with them at [`knobs::CORE_WEIGHT`], and every
+/// config after it is weighted, its back-offs included; the unweighted
+/// failure is forgotten. A verification that misses on average backs off
+/// without weights.
 #[test]
 fn a_verification_that_misses_in_bursts_weights_the_core_nodes_and_verifies_again() {
     let (st, sp) = (stack(), spec(1.0, 5));
@@ -460,13 +462,19 @@ fn a_verification_that_misses_in_bursts_weights_the_core_nodes_and_verifies_agai
     let mut out = Vec::new();
     run.state = finish(&mut run, &env, &env.defs(), &mut out);
     let weights = std::collections::BTreeMap::from([("/planner".to_string(), knobs::CORE_WEIGHT)]);
+    let mut one = [40.0; 10];
+    one[3] = 20.0;
+    let (once, out) = verify(run.clone(), &env, &one);
+    assert_eq!(reasons(&out), vec!["VerificationFailed", "BackingOff"]);
+    assert!(!once.knobs.weighted && !once.bursty && once.burst_windows == 1);
     let mut burst = [40.0; 10];
-    burst[3] = 20.0;
+    burst[3] = 30.0;
+    burst[7] = 30.0;
     let (weighted, out) = verify(run.clone(), &env, &burst);
     assert_eq!(reasons(&out), vec!["CoreWeighted"]);
     assert!(
         event_text(&out[0]).contains(
-            "trial 1 held 90.0 % of the windows while every core mean held its target (cmd 38.0)"
+            "trial 1 held 80.0 % of the windows while every core mean held its target (cmd 38.0)"
         ),
         "{out:?}"
     );
@@ -1097,13 +1105,22 @@ fn a_trial_near_the_boundary_is_measured_longer_not_discarded() {
     assert!(out.is_empty(), "{out:?}");
     // A corner that missed one window of ten but mostly held is near the
     // boundary too: no Unsat from it. Its mean held: the miss was a burst,
-    // and the configs after it weight the core nodes.
+    // but one window is not yet evidence enough to weight the core nodes
+    // (`outcome::BURST_EVIDENCE`) ...
     assert!(!longer.knobs.weighted, "no window missed");
     let (run, _) = baseline_then_first_trial(&env, &BAD, report(&spread, 2.0));
     let one_low = [38.0, 38.5, 34.0, 38.5, 38.0];
-    let (longer, out) = step(run, report(&one_low, 2.0), &env);
-    assert_eq!(reasons(&out), vec!["Trial", "CoreWeighted"]);
+    let (longer, out) = step(run.clone(), report(&one_low, 2.0), &env);
+    assert_eq!(reasons(&out), vec!["Trial"]);
     assert_eq!(longer.trials[0].eval.satisfaction, 0.9);
+    assert_eq!(longer.burst_windows, 1);
+    assert!(!longer.knobs.weighted && !longer.bursty);
+    // ... two are: the configs after it weight the core nodes.
+    let two_low = [38.0, 38.5, 34.0, 38.5, 34.5];
+    let (longer, out) = step(run, report(&two_low, 2.0), &env);
+    assert_eq!(reasons(&out), vec!["Trial", "CoreWeighted"]);
+    assert_eq!(longer.trials[0].eval.satisfaction, 0.8);
+    assert!(longer.bursty);
     let State::TrialApply { config, .. } = &longer.state else {
         panic!("{:?}", longer.state)
     };
