@@ -2,7 +2,8 @@
 //! dev-dependency only; it depends on no other workspace crate):
 //! [`wait_until`] instead of fixed sleeps, [`free_port`], private v1 `cpu`
 //! cgroups removed on drop ([`CpuCgroup`]), [`require`] (a missing
-//! prerequisite skips locally and fails under CI), and child-process guards.
+//! prerequisite skips locally and fails under CI), and child-process guards
+//! ([`ChildGuard`], and [`GroupChild`] with its stdout lines).
 
 pub mod cgroup;
 pub mod port;
@@ -12,7 +13,7 @@ pub mod wait;
 
 pub use cgroup::{CpuCgroup, unique};
 pub use port::{free_port, free_ports};
-pub use process::{ChildGuard, kill9, which};
+pub use process::{ChildGuard, GroupChild, kill9, which};
 pub use require::{require, required, skip};
 pub use wait::{Ready, TimedOut, try_wait_until, wait_until};
 #[cfg(feature = "tokio")]

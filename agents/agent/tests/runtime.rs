@@ -137,8 +137,8 @@ async fn ros_nodes_are_adopted_limited_adapted_and_measured() {
     };
     let t0 = Instant::now();
     let report = rt.measure(&req).await.unwrap();
-    let received =
-        env.procs[listener].count_between(t0, Instant::now()) as f64 / t0.elapsed().as_secs_f64();
+    let received = common::rt::count_between(&env.procs[listener], t0, Instant::now()) as f64
+        / t0.elapsed().as_secs_f64();
     eprintln!("report {report:?}\nlistener's own count {received:.1} Hz");
     assert_eq!(report.series.len(), 5);
     for s in &report.series {
@@ -747,9 +747,7 @@ async fn a_recorder_left_by_a_killed_runtime_is_stopped() {
     // disposition (ignored when the tests run as a background job, as CI's
     // do) and be lost, and `/proc` can show a command line mid-exec.
     wait_until_async("recorders started", T, RT_POLL, async || {
-        [&orphan, &other]
-            .iter()
-            .all(|p| p.lines.lock().unwrap().iter().any(|(_, l)| l == "ready"))
+        [&orphan, &other].iter().all(|p| p.has_line("ready"))
     })
     .await;
     Recordings::new(bags.clone(), RECORDING_MAX_MB)

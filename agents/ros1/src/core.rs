@@ -121,7 +121,8 @@ impl Core {
         match setting {
             Some(s) if !apis.is_empty() => {
                 self.ensure_relay(&id, s);
-                self.tap(topic, false).set_publishers(&apis, &msg_type);
+                self.tap(topic, TapReader::Relay)
+                    .set_publishers(&apis, &msg_type);
                 vec![self.adaptor_uri.clone()]
             }
             _ => apis,
@@ -139,7 +140,8 @@ impl Core {
             EdgeRelay::new(id.clone(), s, self.metrics.clone())
         });
         if created {
-            self.tap(&id.topic, false).add(&relay_key(id), edge.clone());
+            self.tap(&id.topic, TapReader::Relay)
+                .add(&relay_key(id), edge.clone());
         }
         edge
     }
@@ -157,10 +159,11 @@ impl Core {
     }
 
     /// The tap of `topic`, created (and pointed at the topic's publishers)
-    /// when nothing read the topic yet; for a meter (`metered`) its
-    /// connections run on the metering threads, else where they are (the
-    /// relaying threads for a new tap).
-    fn tap(&self, topic: &str, metered: bool) -> Arc<Tap> {
+    /// when nothing read the topic yet; for a meter its connections run on
+    /// the metering threads, for a relay where they are (the relaying
+    /// threads for a new tap).
+    fn tap(&self, topic: &str, reader: TapReader) -> Arc<Tap> {
+        let metered = reader == TapReader::Meter;
         let rt = if metered {
             &self.metering
         } else {
@@ -345,10 +348,20 @@ impl Core {
             Meter::new(self.meter_window_s)
         });
         if created {
-            self.tap(topic, true).add(METER_KEY, m.reader());
+            self.tap(topic, TapReader::Meter).add(METER_KEY, m.reader());
         }
         m
     }
+}
+
+/// Who a tap is got for ([`Core::tap`]): a meter, whose tap's connections
+/// run on the metering threads (it stamps each message as it is read), or
+/// a relay, which copies messages for a non-core subscriber and whose tap
+/// runs on the relaying threads unless a meter reads it too.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum TapReader {
+    Meter,
+    Relay,
 }
 
 /// A relay's key among its topic's tap's readers: its subscriber, as the

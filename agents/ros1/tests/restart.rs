@@ -81,7 +81,7 @@ fn kill_and_restart_keeps_graph_params_and_connections() {
         POLL,
         || recent(&frozen_p) > 20,
     );
-    frozen_p.signal("STOP");
+    assert!(frozen_p.signal("STOP", true), "kill -STOP");
 
     master.kill();
     // a node that dies while the master is down is dropped on restart
@@ -120,7 +120,7 @@ fn kill_and_restart_keeps_graph_params_and_connections() {
     let ra = measure_rate(&la, 3.0);
     assert!((8.5..=11.5).contains(&ra), "adapted after restart: {ra}");
     // the frozen listener, thawed, is still in the graph and receiving
-    frozen_p.signal("CONT");
+    assert!(frozen_p.signal("CONT", true), "kill -CONT");
     wait_until(
         "thawed listener receives",
         Duration::from_secs(20),

@@ -231,7 +231,11 @@ fn params_topics_launch_and_graph_with_real_tools() {
         "{by_arrivals} Hz by arrivals"
     );
     assert!(a.dp.topic_messages("/no_such_topic").is_err());
-    launch.interrupt(Duration::from_secs(15));
+    // SIGINT: roslaunch stops the nodes it started in their own sessions.
+    launch.signal("INT", false);
+    if !launch.wait_exit(Duration::from_secs(15)) {
+        launch.kill();
+    }
 }
 
 #[test]

@@ -45,7 +45,7 @@ fn heavy_callback_starves_a_core_callback_sharing_one_worker() {
         let mut node = env.simnode(&a);
         wait_more(&listener, 5, "core output");
         let (rate, _) = rate_over(&listener, 3.0);
-        assert!(node.signal_and_wait("-TERM", Duration::from_secs(5)));
+        assert!(node.signal("TERM", false) && node.wait_exit(Duration::from_secs(5)));
         rate
     };
     let alone = phase(&["--workers", "1"]);

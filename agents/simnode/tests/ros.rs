@@ -38,7 +38,7 @@ fn wait_registered(env: &RosEnv, node: &str) {
 /// leaves `rosnode list` within 10 s.
 fn exits_and_unregisters(env: &RosEnv, sim: &mut Proc, node: &str, sig: &str) {
     assert!(
-        sim.signal_and_wait(sig, Duration::from_secs(5)),
+        sim.signal(sig, false) && sim.wait_exit(Duration::from_secs(5)),
         "no prompt exit"
     );
     wait_until(
@@ -119,7 +119,7 @@ fn publisher_seen_by_real_tools(kind: MasterKind) {
     assert!(echo.contains("length: 1024"), "{echo}");
 
     // SIGTERM: prompt exit, unregistered.
-    exits_and_unregisters(env, &mut sim, &node, "-TERM");
+    exits_and_unregisters(env, &mut sim, &node, "TERM");
     let topics = env.try_run("rostopic", &["list", "-p"]).unwrap_or_default();
     assert!(!topics.contains(&topic), "{topics}");
 }
@@ -171,7 +171,7 @@ fn rospy_feeds_a_callback(kind: MasterKind) {
     );
     let info = env.try_run("rosnode", &["info", &node]).unwrap_or_default();
     assert!(info.contains("inbound") && info.contains(&input), "{info}");
-    exits_and_unregisters(env, &mut sim, &node, "-INT");
+    exits_and_unregisters(env, &mut sim, &node, "INT");
 }
 
 #[test]

@@ -38,6 +38,9 @@ pub fn examples() -> PathBuf {
 
 static COUNTER: AtomicU32 = AtomicU32::new(0);
 
+/// How often a robot's first start tries a ROS port (see `Robot::first_start`).
+const PORT_TRIES: u32 = 3;
+
 /// Serialises the scenarios of one test binary.
 static SERIAL: Mutex<()> = Mutex::new(());
 
@@ -88,7 +91,7 @@ impl Robot {
     /// Starts `configbot serve --agent` and waits for its API socket.
     pub fn start() -> Robot {
         let mut r = Robot::new(false);
-        r.spawn_server();
+        r.first_start(Robot::spawn_server);
         r
     }
 
@@ -96,9 +99,33 @@ impl Robot {
     /// --agent-socket` driving it: two processes that can be killed apart.
     pub fn start_split() -> Robot {
         let mut r = Robot::new(true);
-        r.spawn_agent();
-        r.spawn_server();
+        r.first_start(Robot::spawn_agent);
+        r.spawn_server().unwrap_or_else(|e| panic!("{e}"));
         r
+    }
+
+    /// Starts, with `spawn`, the process that binds the robot's ROS master
+    /// port. [`free_port`] only probed that port, so another test's process
+    /// may have taken it since; then the process exits saying the address
+    /// is in use, and it is started again on a new port, up to
+    /// [`PORT_TRIES`] times. (A restart keeps its port: there a taken port
+    /// is a failure.)
+    fn first_start(&mut self, spawn: fn(&mut Robot) -> Result<(), String>) {
+        for _ in 1..PORT_TRIES {
+            match spawn(self) {
+                Ok(()) => return,
+                Err(e) if e.contains("Address already in use") => {
+                    let taken = self.ros_port;
+                    self.ros_port = free_port();
+                    eprintln!(
+                        "e2e: ROS port {taken} was taken meanwhile; trying {}",
+                        self.ros_port
+                    );
+                }
+                Err(e) => panic!("{e}"),
+            }
+        }
+        spawn(self).unwrap_or_else(|e| panic!("{e}"));
     }
 
     /// A robot with nothing running yet, the test process in its ctl cgroup.
@@ -132,7 +159,9 @@ impl Robot {
         self.server.as_ref().map(Child::id)
     }
 
-    fn spawn_agent(&mut self) {
+    /// Starts `configbot agent` and waits for its socket; `Err` with the
+    /// logs when it exits first.
+    fn spawn_agent(&mut self) -> Result<(), String> {
         let _ = std::fs::remove_file(self.agent_socket());
         let d = self.dir.path();
         let child = Command::new(configbot_bin())
@@ -158,7 +187,7 @@ impl Robot {
         let sock = self.agent_socket();
         self.wait_socket(&sock, "configbot agent", |r| {
             r.agent.as_mut().map(|c| c.try_wait())
-        });
+        })
     }
 
     /// `kill -9` of the separate agent (its nodes keep running), then a new
@@ -169,7 +198,7 @@ impl Robot {
             let _ = c.kill();
             let _ = c.wait();
         }
-        self.spawn_agent();
+        self.spawn_agent().unwrap_or_else(|e| panic!("{e}"));
     }
 
     /// The agent's stderr so far (a split robot).
@@ -203,30 +232,34 @@ impl Robot {
         }
     }
 
-    /// Waits up to 30 s for a Unix socket to accept; panics with the logs
-    /// when the process (`status`) exits first or time runs out.
+    /// Waits up to 30 s for a Unix socket to accept; `Err` with the logs
+    /// when the process (`status`) exits first; panics with them when time
+    /// runs out.
     fn wait_socket(
         &mut self,
         sock: &Path,
         what: &str,
         status: impl Fn(&mut Robot) -> Option<std::io::Result<Option<std::process::ExitStatus>>>,
-    ) {
+    ) -> Result<(), String> {
+        let mut exited = None;
         let up = try_wait_until(
             &format!("{what} to come up"),
             Duration::from_secs(30),
             Duration::from_millis(20),
             || {
                 if let Some(Ok(Some(st))) = status(self) {
-                    panic!(
-                        "{what} exited ({st}):\n{}{}",
-                        self.server_log(),
-                        self.agent_log()
-                    );
+                    exited = Some(st);
+                    return true;
                 }
                 std::os::unix::net::UnixStream::connect(sock).is_ok()
             },
         );
-        up.unwrap_or_else(|e| panic!("{e}:\n{}{}", self.server_log(), self.agent_log()));
+        let logs = || format!("{}{}", self.server_log(), self.agent_log());
+        match (up, exited) {
+            (_, Some(st)) => Err(format!("{what} exited ({st}):\n{}", logs())),
+            (Ok(()), None) => Ok(()),
+            (Err(e), None) => panic!("{e}:\n{}", logs()),
+        }
     }
 
     pub fn socket(&self) -> PathBuf {
@@ -255,7 +288,9 @@ impl Robot {
         ctl.join(&cpu).expect("move the test into the ctl cgroup");
     }
 
-    fn spawn_server(&mut self) {
+    /// Starts `configbot serve` and waits for its socket; `Err` with the
+    /// logs when it exits first.
+    fn spawn_server(&mut self) -> Result<(), String> {
         let _ = std::fs::remove_file(self.socket());
         let mut cmd = Command::new(configbot_bin());
         cmd.arg("serve")
@@ -281,7 +316,7 @@ impl Robot {
         let sock = self.socket();
         self.wait_socket(&sock, "configbot serve", |r| {
             r.server.as_mut().map(|c| c.try_wait())
-        });
+        })
     }
 
     /// Whether the server process is still running.
@@ -303,7 +338,7 @@ impl Robot {
             let _ = c.kill();
             let _ = c.wait();
         }
-        self.spawn_server();
+        self.spawn_server().unwrap_or_else(|e| panic!("{e}"));
     }
 
     /// Runs `configbot ARGS` against this robot's control plane.

@@ -3,11 +3,8 @@
 //! also on failure), ROS environment, timestamped child output.
 #![allow(dead_code)]
 
-use std::io::{BufRead, BufReader};
-use std::os::unix::process::CommandExt;
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
-use std::sync::{Arc, Mutex};
+use std::process::Command;
 use std::time::{Duration, Instant};
 
 use configbot_agent::runtime::{DEFAULT_BACKEND, DataPlaneOptions, NodeRuntime, RuntimeOptions};
@@ -41,57 +38,16 @@ pub fn script(name: &str) -> String {
         .into_owned()
 }
 
-/// A child in its own process group, killed group-wide on drop; stdout
-/// lines are kept with their arrival times.
-pub struct Proc {
-    pub child: Child,
-    pub lines: Arc<Mutex<Vec<(Instant, String)>>>,
-}
+/// A child in its own process group (killed group-wide on drop), its
+/// stdout lines timestamped: `configbot_test_support`'s.
+pub use configbot_test_support::GroupChild as Proc;
 
-impl Proc {
-    pub fn spawn(mut c: Command) -> Proc {
-        c.stdout(Stdio::piped())
-            .stderr(Stdio::null())
-            .stdin(Stdio::null())
-            .process_group(0);
-        let mut child = c.spawn().unwrap();
-        let lines = Arc::new(Mutex::new(Vec::new()));
-        let out = child.stdout.take().unwrap();
-        let l = lines.clone();
-        std::thread::spawn(move || {
-            for line in BufReader::new(out).lines().map_while(Result::ok) {
-                l.lock().unwrap().push((Instant::now(), line));
-            }
-        });
-        Proc { child, lines }
-    }
-
-    pub fn pid(&self) -> u32 {
-        self.child.id()
-    }
-
-    /// "msg" lines that arrived in [from, to).
-    pub fn count_between(&self, from: Instant, to: Instant) -> usize {
-        self.lines
-            .lock()
-            .unwrap()
-            .iter()
-            .filter(|(t, l)| l == "msg" && *t >= from && *t < to)
-            .count()
-    }
-}
-
-impl Drop for Proc {
-    fn drop(&mut self) {
-        let pgid = self.child.id() as i32;
-        #[allow(unsafe_code)]
-        // SAFETY: kill(2) with plain integers; touches no memory of ours.
-        unsafe {
-            libc::kill(-pgid, libc::SIGKILL);
-        }
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-    }
+/// "msg" lines that `p` printed in [from, to).
+pub fn count_between(p: &Proc, from: Instant, to: Instant) -> usize {
+    p.lines_between(from, to)
+        .iter()
+        .filter(|l| *l == "msg")
+        .count()
 }
 
 /// The bag size cap of the runtimes under test, in MB.

@@ -6,14 +6,11 @@
 
 #![allow(dead_code)]
 
-use std::io::{BufRead, BufReader};
-use std::os::unix::process::CommandExt;
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
-use std::sync::{Arc, Mutex};
+use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
-use configbot_test_support::{require, try_wait_until};
+use configbot_test_support::require;
 
 /// How often the tests' condition waits look.
 pub const POLL: Duration = Duration::from_millis(50);
@@ -92,94 +89,22 @@ impl RosEnv {
     }
 }
 
-/// A child in its own process group; killed (group-wide) on drop. Its
-/// stdout lines are collected with arrival times.
-#[derive(Debug)]
-pub struct Proc {
-    pub child: Child,
-    pub lines: Arc<Mutex<Vec<(Instant, String)>>>,
-}
+/// A child in its own process group (killed group-wide on drop), its
+/// stdout lines timestamped: `configbot_test_support`'s.
+pub use configbot_test_support::GroupChild as Proc;
 
-impl Proc {
-    pub fn spawn(mut c: Command) -> Proc {
-        c.stdout(Stdio::piped())
-            .stderr(Stdio::null())
-            .process_group(0);
-        let mut child = c.spawn().unwrap_or_else(|e| panic!("spawning {c:?}: {e}"));
-        let lines = Arc::new(Mutex::new(Vec::new()));
-        let out = child.stdout.take().unwrap();
-        let l = lines.clone();
-        std::thread::spawn(move || {
-            for line in BufReader::new(out).lines().map_while(Result::ok) {
-                l.lock().unwrap().push((Instant::now(), line));
-            }
-        });
-        Proc { child, lines }
-    }
-
-    pub fn pid(&self) -> u32 {
-        self.child.id()
-    }
-
-    pub fn has_line(&self, s: &str) -> bool {
-        self.lines
-            .lock()
-            .unwrap()
-            .iter()
-            .any(|(_, l)| l.contains(s))
-    }
-
+/// What the tests read of a listener's stdout.
+pub trait Msgs {
     /// Messages ("msg ..." lines) received in [from, to).
-    pub fn count_between(&self, from: Instant, to: Instant) -> usize {
-        self.lines
-            .lock()
-            .unwrap()
-            .iter()
-            .filter(|(t, l)| l.starts_with("msg") && *t >= from && *t < to)
-            .count()
-    }
-
-    /// SIGINT (roslaunch then stops the nodes it started in their own
-    /// sessions), wait up to `timeout`, then kill.
-    pub fn interrupt(&mut self, timeout: Duration) {
-        let _ = Command::new("kill")
-            .args(["-INT", &self.child.id().to_string()])
-            .stderr(Stdio::null())
-            .status();
-        let exited = try_wait_until("the child to exit", timeout, POLL, || {
-            matches!(self.child.try_wait(), Ok(Some(_)))
-        });
-        if exited.is_err() {
-            self.kill();
-        }
-    }
-
-    /// Sends `signal` (e.g. `STOP`, `CONT`) to the child's process group.
-    pub fn signal(&self, signal: &str) {
-        let ok = Command::new("kill")
-            .args([
-                &format!("-{signal}"),
-                "--",
-                &format!("-{}", self.child.id()),
-            ])
-            .status()
-            .is_ok_and(|s| s.success());
-        assert!(ok, "kill -{signal} {}", self.child.id());
-    }
-
-    pub fn kill(&mut self) {
-        let _ = Command::new("kill")
-            .args(["-KILL", "--", &format!("-{}", self.child.id())])
-            .stderr(Stdio::null())
-            .status();
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-    }
+    fn count_between(&self, from: Instant, to: Instant) -> usize;
 }
 
-impl Drop for Proc {
-    fn drop(&mut self) {
-        self.kill();
+impl Msgs for Proc {
+    fn count_between(&self, from: Instant, to: Instant) -> usize {
+        self.lines_between(from, to)
+            .iter()
+            .filter(|l| l.starts_with("msg"))
+            .count()
     }
 }
 

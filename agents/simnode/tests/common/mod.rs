@@ -7,14 +7,11 @@
 
 #![allow(dead_code)]
 
-use std::io::{BufRead, BufReader};
-use std::os::unix::process::CommandExt;
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
-use std::sync::{Arc, Mutex};
+use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
-use configbot_test_support::{free_port, require, try_wait_until, wait_until};
+use configbot_test_support::{free_port, require, wait_until};
 
 /// How often the tests' condition waits look.
 pub const POLL: Duration = Duration::from_millis(50);
@@ -204,51 +201,30 @@ impl RosEnv {
     }
 }
 
-/// A child in its own process group (killed group-wide on drop); its stdout
-/// lines are collected with arrival times.
-#[derive(Debug)]
-pub struct Proc {
-    pub child: Child,
-    pub lines: Arc<Mutex<Vec<(Instant, String)>>>,
+/// A child in its own process group (killed group-wide on drop), its
+/// stdout lines timestamped: `configbot_test_support`'s.
+pub use configbot_test_support::GroupChild as Proc;
+
+/// What the tests read of a simnode's or a listener's stdout.
+pub trait Msgs {
+    /// "msg seq latency_ms len" lines received in [from, to).
+    fn msgs_between(&self, from: Instant, to: Instant) -> Vec<(u64, f64, usize)>;
+
+    fn msg_count(&self) -> usize {
+        self.msgs_between(
+            Instant::now() - Duration::from_secs(3600),
+            Instant::now() + Duration::from_secs(1),
+        )
+        .len()
+    }
 }
 
-impl Proc {
-    pub fn spawn(mut c: Command) -> Proc {
-        c.stdout(Stdio::piped())
-            .stderr(Stdio::null())
-            .process_group(0);
-        let mut child = c.spawn().unwrap_or_else(|e| panic!("spawning {c:?}: {e}"));
-        let lines = Arc::new(Mutex::new(Vec::new()));
-        let out = child.stdout.take().unwrap();
-        let l = lines.clone();
-        std::thread::spawn(move || {
-            for line in BufReader::new(out).lines().map_while(Result::ok) {
-                l.lock().unwrap().push((Instant::now(), line));
-            }
-        });
-        Proc { child, lines }
-    }
-
-    pub fn pid(&self) -> u32 {
-        self.child.id()
-    }
-
-    pub fn has_line(&self, s: &str) -> bool {
-        self.lines
-            .lock()
-            .unwrap()
+impl Msgs for Proc {
+    fn msgs_between(&self, from: Instant, to: Instant) -> Vec<(u64, f64, usize)> {
+        self.lines_between(from, to)
             .iter()
-            .any(|(_, l)| l.contains(s))
-    }
-
-    /// "msg seq latency_ms len" lines received in [from, to).
-    pub fn msgs_between(&self, from: Instant, to: Instant) -> Vec<(u64, f64, usize)> {
-        self.lines
-            .lock()
-            .unwrap()
-            .iter()
-            .filter(|(t, l)| l.starts_with("msg ") && *t >= from && *t < to)
-            .filter_map(|(_, l)| {
+            .filter(|l| l.starts_with("msg "))
+            .filter_map(|l| {
                 let mut w = l.split_whitespace().skip(1);
                 Some((
                     w.next()?.parse().ok()?,
@@ -257,45 +233,6 @@ impl Proc {
                 ))
             })
             .collect()
-    }
-
-    pub fn msg_count(&self) -> usize {
-        self.msgs_between(
-            Instant::now() - Duration::from_secs(3600),
-            Instant::now() + Duration::from_secs(1),
-        )
-        .len()
-    }
-
-    /// Sends `sig` to the child and waits up to `timeout` for it to exit;
-    /// true when it did.
-    pub fn signal_and_wait(&mut self, sig: &str, timeout: Duration) -> bool {
-        let _ = Command::new("kill")
-            .args([sig, &self.child.id().to_string()])
-            .stderr(Stdio::null())
-            .status();
-        try_wait_until(
-            "the child to exit",
-            timeout,
-            Duration::from_millis(20),
-            || matches!(self.child.try_wait(), Ok(Some(_))),
-        )
-        .is_ok()
-    }
-
-    pub fn kill(&mut self) {
-        let _ = Command::new("kill")
-            .args(["-KILL", "--", &format!("-{}", self.child.id())])
-            .stderr(Stdio::null())
-            .status();
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-    }
-}
-
-impl Drop for Proc {
-    fn drop(&mut self) {
-        self.kill();
     }
 }
 
