@@ -774,7 +774,7 @@ pub fn bursts(defs: &[MetricDef], eval: &measure::Evaluation) -> bool {
 /// Measured on Basic-NAV: in sessions 35 and 46 and in a `./x demo` of
 /// 2026-12-01 a capped config (detection 4.3 Hz) missed one window of ten,
 /// the run weighted on it, and its detector fell to 1.35, 1.4 and 3.5 Hz
-/// under the weight (136–216 s to Monitoring against 85–105 s when that
+/// under the weight (212–216 s to Monitoring against 85–105 s when that
 /// window held); on real-two-paths the configs that weighted runs missed
 /// 11 of 90 windows unweighted.
 pub const BURST_EVIDENCE: u32 = 2;
