@@ -71,6 +71,16 @@ impl GroupChild {
             .any(|(_, l)| l.contains(s))
     }
 
+    /// Every stdout line so far.
+    pub fn lines(&self) -> Vec<String> {
+        self.lines
+            .lock()
+            .unwrap()
+            .iter()
+            .map(|(_, l)| l.clone())
+            .collect()
+    }
+
     /// The stdout lines that arrived in `[from, to)`.
     pub fn lines_between(&self, from: Instant, to: Instant) -> Vec<String> {
         self.lines

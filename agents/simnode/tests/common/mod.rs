@@ -210,30 +210,31 @@ pub trait Msgs {
     /// "msg seq latency_ms len" lines received in [from, to).
     fn msgs_between(&self, from: Instant, to: Instant) -> Vec<(u64, f64, usize)>;
 
-    fn msg_count(&self) -> usize {
-        self.msgs_between(
-            Instant::now() - Duration::from_secs(3600),
-            Instant::now() + Duration::from_secs(1),
-        )
-        .len()
-    }
+    /// Every "msg" line so far.
+    fn msg_count(&self) -> usize;
 }
 
 impl Msgs for Proc {
     fn msgs_between(&self, from: Instant, to: Instant) -> Vec<(u64, f64, usize)> {
         self.lines_between(from, to)
             .iter()
-            .filter(|l| l.starts_with("msg "))
-            .filter_map(|l| {
-                let mut w = l.split_whitespace().skip(1);
-                Some((
-                    w.next()?.parse().ok()?,
-                    w.next()?.parse().ok()?,
-                    w.next()?.parse().ok()?,
-                ))
-            })
+            .filter_map(|l| parse_msg(l))
             .collect()
     }
+
+    fn msg_count(&self) -> usize {
+        self.lines().iter().filter_map(|l| parse_msg(l)).count()
+    }
+}
+
+/// A "msg seq latency_ms len" line's fields.
+fn parse_msg(l: &str) -> Option<(u64, f64, usize)> {
+    let mut w = l.strip_prefix("msg ")?.split_whitespace();
+    Some((
+        w.next()?.parse().ok()?,
+        w.next()?.parse().ok()?,
+        w.next()?.parse().ok()?,
+    ))
 }
 
 /// Rate (Hz) of the messages `p` printed over the next `secs` seconds, and
