@@ -1129,11 +1129,25 @@ pub fn step(mut run: Run, input: Input, env: &Env<'_>) -> (Run, Vec<Output>) {
             let by_windows = so_far.is_some() || run.bursty;
             // Measured on so far, every window on target.
             let measuring_on = so_far.is_some() && short && eval.satisfaction >= 1.0;
+            // A lift that shows too little of the rise it promises ends at
+            // once, whatever its windows: its record would buy nothing.
+            if let Some(text) = outcome::lift_short(&run, env, &defs, &candidate, &eval) {
+                out.push(normal(
+                    Reason::LiftingObjectives,
+                    format!(
+                        "{} {text} (after {} s)",
+                        candidate.text(),
+                        report.duration_ms / 1000
+                    ),
+                ));
+                run.lift_ended = true;
+                outcome::restore(&mut run, env, &defs, &mut out)
+            }
             // A first measurement whose windows all held goes on to the
             // minute (the record) when its margin is short of the bar, even
             // where its bound misses: few windows do not make a config
             // infeasible when every one of them was on target.
-            if so_far.is_none()
+            else if so_far.is_none()
                 && short
                 && holds(&eval, true)
                 && (run.bursty || measure::short_of_bar(&defs, &report))

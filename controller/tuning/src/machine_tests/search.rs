@@ -1845,11 +1845,67 @@ fn a_held_config_is_lifted_where_only_its_worst_objective_gains() {
     );
     assert!(back.held.is_empty() && back.lift_ended);
     // Held with no more objective: back too.
-    let (same, out) = verify_det(lifting, &env, &OK, 4.0);
+    let (same, out) = verify_det(lifting.clone(), &env, &OK, 4.0);
     assert_eq!(reasons(&out), vec!["LiftingObjectives", "<save>"]);
     assert!(
-        event_text(&out[0]).contains("no more than 0.400"),
+        event_text(&out[0]).contains("measured objective 0.400, short of 0.600"),
         "{out:?}"
     );
-    assert_eq!(same.state, State::RestoreApply { config: held });
+    assert_eq!(
+        same.state,
+        State::RestoreApply {
+            config: held.clone()
+        }
+    );
+    // The lift doubles the detector's CPU, promising detection 8 of 10
+    // (0.800): a lift that measures less than half that rise (0.600) ends
+    // at its first measurement, even one whose windows missed, and the
+    // run goes back to trial 0's config; one that shows the rise holds.
+    for (cmd, det) in [(&OK, 5.9), (&BAD, 5.9)] {
+        let (short, out) = verify_det(lifting.clone(), &env, cmd, det);
+        assert_eq!(reasons(&out), vec!["LiftingObjectives", "<save>"], "{det}");
+        assert!(
+            event_text(&out[0]).contains("measured objective 0.590, short of 0.600: 50 % of the rise from 0.400 to the 0.800 its raised knobs promise"),
+            "{out:?}"
+        );
+        assert_eq!(
+            short.state,
+            State::RestoreApply {
+                config: held.clone()
+            }
+        );
+        assert!(short.lift_ended);
+    }
+    let (up, out) = verify_det(lifting, &env, &OK, 6.1);
+    assert_eq!(reasons(&out), vec!["Satisfied", "<save>"]);
+    assert!(matches!(up.state, State::Monitor { .. }), "{:?}", up.state);
+}
+
+/// In a bursty run a verification measures on to its record; a lift whose
+/// first measurement shows too little of its promised rise does not: it
+/// ends there, and the run goes back to the config it raised.
+#[test]
+fn a_lift_that_shows_too_little_ends_before_its_record() {
+    let (st, sp) = (stack(), two_objectives());
+    let env = env(&st, &sp);
+    let mut run = with_two_trials(&env);
+    run.knobs.knobs[0].feeds = vec!["det".into()];
+    run.trials.clear();
+    push_trial(&mut run, &env, &[1.0, 1.5], 4.0);
+    run.state = finish(&mut run, &env, &env.defs(), &mut Vec::new());
+    let (lifting, _) = verify_det(run, &env, &OK, 4.0);
+    let mut bursty = lifting.clone();
+    bursty.bursty = true;
+    // Showing the rise, the lift measures on to its record ...
+    let (on, out) = verify_det(bursty.clone(), &env, &OK, 8.0);
+    assert_eq!(reasons(&out), vec!["NearBoundary"], "{out:?}");
+    assert_eq!(name(&on.state), "Verify");
+    // ... and not showing it, it ends after its first measurement.
+    let (back, out) = verify_det(bursty, &env, &OK, 4.4);
+    assert_eq!(
+        reasons(&out),
+        vec!["LiftingObjectives", "<save>"],
+        "{out:?}"
+    );
+    assert_eq!(name(&back.state), "RestoreApply");
 }
