@@ -110,11 +110,6 @@ pub const TRIM_HEADROOM: f64 = 1.5;
 /// frees too little CPU to be worth a config that was not measured.
 pub const TRIM_BELOW: f64 = 0.8;
 
-/// Messages of an app's output a measurement must have counted before
-/// its input is matched to that output ([`KnobSpace::matched`]): with
-/// fewer, one message more or less moves the rate by a fifth or more.
-pub const MATCH_COUNT: f64 = 5.0;
-
 /// The knob space could not be built.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum KnobError {
@@ -577,46 +572,6 @@ impl KnobSpace {
             match raise {
                 Some(f) => (v * f).min(k.max).max(v),
                 None => v,
-            }
-        })
-    }
-
-    /// The point `x` with the input of every non-core app that drops most
-    /// of it cut to [`TRIM_HEADROOM`] times what the app put out (pure):
-    /// an adaptor knob into a non-core app whose every objective
-    /// ([`KnobDef::feeds`]) has an output rate in `outputs` (Hz, counted
-    /// over `seconds`: at least [`MATCH_COUNT`] messages) below its input
-    /// by more than that. A busy app drops the frames that arrive while it
-    /// works, yet the relay and the app still move every one of them, with
-    /// CPU the other apps and the core path share; an app that keeps up
-    /// with its input is left alone. Only cuts to at most [`TRIM_BELOW`]
-    /// of the value are made, and none below the knob's minimum. `None`
-    /// when nothing would change.
-    pub fn matched(
-        &self,
-        x: &[f64],
-        outputs: &BTreeMap<String, f64>,
-        seconds: f64,
-    ) -> Option<Vec<f64>> {
-        self.moved(x, |k, v| {
-            let out = (matches!(k.target, KnobTarget::Adaptor { .. })
-                && k.restricts_non_core
-                && !k.feeds.is_empty())
-            .then(|| {
-                k.feeds
-                    .iter()
-                    .map(|m| {
-                        outputs
-                            .get(m)
-                            .copied()
-                            .filter(|r| r * seconds >= MATCH_COUNT)
-                    })
-                    .try_fold(0.0_f64, |a, r| Some(a.max(r?)))
-            })
-            .flatten();
-            match out.map(|r| r * TRIM_HEADROOM) {
-                Some(keep) if keep <= TRIM_BELOW * v => keep.max(k.min).min(v),
-                _ => v,
             }
         })
     }
@@ -1155,54 +1110,6 @@ mod tests {
         // A cut that keeps more than TRIM_BELOW of the input is not made.
         let slight: BTreeMap<String, f64> = [("bright".to_string(), 1.7)].into();
         assert_eq!(s.trimmed(&[30.0, 1.0, 20.0, 1.5, 0.5], &slight), None);
-    }
-
-    #[test]
-    fn an_input_an_app_mostly_drops_is_cut_to_what_it_puts_out() {
-        let knob = |name: &str, sub: &str, feeds: &[&str]| KnobDef {
-            name: name.into(),
-            target: KnobTarget::Adaptor {
-                topic: "/image".into(),
-                subscriber: sub.into(),
-            },
-            min: 0.5,
-            max: 30.0,
-            restricts_non_core: true,
-            feeds: feeds.iter().map(|f| f.to_string()).collect(),
-        };
-        let s = KnobSpace {
-            knobs: vec![
-                knob("rate:/image>/flow", "/flow", &["flow"]),
-                knob("rate:/image>/lines", "/lines", &["lines"]),
-                knob("rate:/image>/vision", "/vision", &["people", "flow"]),
-                knob("rate:/image>/bright", "/bright", &["bright"]),
-            ],
-            period_micros: 20_000,
-            ..KnobSpace::default()
-        };
-        let outputs: BTreeMap<String, f64> = [
-            ("flow", 3.0),
-            ("lines", 0.7),
-            ("people", 1.0),
-            ("bright", 9.0),
-        ]
-        .into_iter()
-        .map(|(k, v)| (k.to_string(), v))
-        .collect();
-        let y = s.matched(&[20.0, 5.0, 20.0, 10.0], &outputs, 5.0).unwrap();
-        // flow put out 3 Hz of 20: its input keeps 1.5 times the 3.
-        assert!((y[0] - 4.5).abs() < 1e-9, "{y:?}");
-        // lines counted 3.5 messages in 5 s: too few to cut by.
-        assert_eq!(y[1], 5.0);
-        // /vision feeds people and flow: the faster of them sets its cut.
-        assert!((y[2] - 4.5).abs() < 1e-9, "{y:?}");
-        // bright keeps up with its input (9 of 10): left alone.
-        assert_eq!(y[3], 10.0);
-        // Over a longer measurement, lines' 0.7 Hz counts: cut to 1.05.
-        let longer = s.matched(&[20.0, 5.0, 20.0, 10.0], &outputs, 30.0).unwrap();
-        assert!((longer[1] - 1.05).abs() < 1e-9, "{longer:?}");
-        // Nothing to cut: None.
-        assert_eq!(s.matched(&[4.0, 1.0, 4.0, 10.0], &outputs, 5.0), None);
     }
 
     #[test]

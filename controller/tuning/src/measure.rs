@@ -429,15 +429,6 @@ pub fn surplus(
         .collect()
 }
 
-/// The output rate (Hz) each rate objective measured, by name (pure): the
-/// non-core metrics that count a topic's messages, at least a target.
-pub fn output_rates(defs: &[MetricDef], means: &BTreeMap<String, f64>) -> BTreeMap<String, f64> {
-    defs.iter()
-        .filter(|d| !d.core && d.at_least && matches!(d.probe, Probe::TopicRate { .. }))
-        .filter_map(|d| Some((d.name.clone(), *means.get(&d.name)?)))
-        .collect()
-}
-
 /// Objectives within this factor of the worst one count as tied with it in
 /// a [`lift`]: a window's count of a slow output is ±20 %.
 pub const LIFT_TIE: f64 = 1.25;

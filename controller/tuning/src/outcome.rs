@@ -672,20 +672,13 @@ pub fn after_tip(
 }
 
 /// Trial `index`'s point with its surplus trimmed ([`KnobSpace::trimmed`]
-/// on [`measure::surplus`] of the trial's means) and then the inputs its
-/// apps mostly dropped matched to what they put out
-/// ([`KnobSpace::matched`] on [`measure::output_rates`], counted over the
-/// trial's length), and the event text that says what was cut; `None`
-/// when nothing is. Measured on real-nodelets
+/// on [`measure::surplus`] of the trial's means), and the event text that
+/// says what was cut; `None` when nothing is. Measured on real-nodelets
 /// (2026-11-26): the run's objective was the vision manager's input (about
 /// 1 Hz against 3), and the brightness transform, its own process, was
 /// verified at 27 Hz of input against the 5 Hz that objective level needs
 /// of it (the scalarisation is max-min); its CPU took the core tracker's
-/// margin and the config missed 3 windows of the next minute. Measured on
-/// real-perception (session 49, seeds 1 and 2, core nodes weighted):
-/// trials fed the flow detector 15–29 Hz of camera for its 2.2–3.3 Hz of
-/// output, and every verified config held below 0.7, where the oracle's
-/// best (0.845) feeds it 3.4 Hz and it puts out all 3.4.
+/// margin and the config missed 3 windows of the next minute.
 pub fn trimmed_trial(
     run: &Run,
     env: &Env<'_>,
@@ -695,57 +688,36 @@ pub fn trimmed_trial(
     let t = run.trials.get(index)?;
     let s = env.spec.tuning.scalarization;
     let surplus = measure::surplus(defs, &t.eval.means, s);
-    let trimmed = run.knobs.trimmed(&t.x, &surplus);
-    let base = trimmed.as_deref().unwrap_or(&t.x);
-    let outputs = measure::output_rates(defs, &t.eval.means);
-    let matched = run
+    let y = run.knobs.trimmed(&t.x, &surplus)?;
+    let cuts: Vec<String> = run
         .knobs
-        .matched(base, &outputs, env.spec.tuning.trial_seconds);
-    let cuts = |from: &[f64], to: &[f64], why: &dyn Fn(&str) -> Option<String>| {
-        run.knobs
-            .knobs
-            .iter()
-            .zip(from.iter().zip(to))
-            .filter(|(_, (a, b))| b < a)
-            .map(|(k, (a, b))| {
-                let most: Vec<String> = k.feeds.iter().filter_map(|m| why(m)).collect();
-                format!("{} {a:.2} -> {b:.2} ({})", k.name, most.join(", "))
-            })
-            .collect::<Vec<_>>()
-            .join(", ")
+        .knobs
+        .iter()
+        .zip(t.x.iter().zip(&y))
+        .filter(|(_, (a, b))| b < a)
+        .map(|(k, (a, b))| {
+            let most = k
+                .feeds
+                .iter()
+                .filter_map(|m| surplus.get(m).map(|h| format!("{m} {h:.1}x")))
+                .collect::<Vec<_>>()
+                .join(", ");
+            format!("{} {a:.2} -> {b:.2} ({most})", k.name)
+        })
+        .collect();
+    let level = match s {
+        configbot_manifests::performance_spec::Scalarization::MaxMin => format!(
+            "the level of the worst objective ({:.3})",
+            t.eval.objective.unwrap_or(0.0)
+        ),
+        configbot_manifests::performance_spec::Scalarization::Weighted => "their targets".into(),
     };
-    let mut parts = Vec::new();
-    if let Some(y) = &trimmed {
-        let level = match s {
-            configbot_manifests::performance_spec::Scalarization::MaxMin => format!(
-                "the level of the worst objective ({:.3})",
-                t.eval.objective.unwrap_or(0.0)
-            ),
-            configbot_manifests::performance_spec::Scalarization::Weighted => {
-                "their targets".into()
-            }
-        };
-        parts.push(format!(
-            "the input of apps whose objectives measured more than counts cut to {} times {level}: {}",
-            super::knobs::TRIM_HEADROOM,
-            cuts(&t.x, y, &|m| surplus.get(m).map(|h| format!("{m} {h:.1}x")))
-        ));
-    }
-    if let Some(y) = &matched {
-        parts.push(format!(
-            "the input of apps that dropped most of it cut to {} times what they put out: {}",
-            super::knobs::TRIM_HEADROOM,
-            cuts(base, y, &|m| outputs
-                .get(m)
-                .map(|r| format!("{m} {r:.2} Hz")))
-        ));
-    }
-    let y = matched.or(trimmed)?;
     Some((
         y,
         format!(
-            "verifying trial {index} with {}; the CPU they took is margin for the core services and the other apps",
-            parts.join("; and ")
+            "verifying trial {index} with the input of apps whose objectives measured more than counts cut to {} times {level}: {}; the CPU they took is margin for the core services",
+            super::knobs::TRIM_HEADROOM,
+            cuts.join(", ")
         ),
     ))
 }
