@@ -5,7 +5,8 @@
 //! clearly infeasible trial as a censored observation) → Verify the best
 //! (drain, apply, settle, measure; a failing best trial is backed off first;
 //! a held one is lifted, the lift tried again halved when it misses, and
-//! the held one restored when that misses too) or apply the
+//! the held one restored when that misses too, or at once when the lift
+//! shows too little of the rise it promises) or apply the
 //! safest (Unsat) → Monitor; a familiar context re-applies its
 //! library config and verifies it (after a drain, as a trial's); Remediating stops or freezes non-core apps
 //! (and records their inputs) when tuning is not allowed and a constraint is

@@ -1737,6 +1737,17 @@ fn verify_det(run: Run, env: &Env<'_>, cmd: &[f64], det: f64) -> (Run, Vec<Outpu
     step(run, report(cmd, det), env)
 }
 
+/// A run about to verify its one trial, at detection 4 of 10 (objective
+/// 0.4, below the images' 1.0), whose detector CPU works only for `det`.
+fn held_at_detection_4(env: &Env<'_>) -> Run {
+    let mut run = with_two_trials(env);
+    run.knobs.knobs[0].feeds = vec!["det".into()];
+    run.trials.clear();
+    push_trial(&mut run, env, &[1.0, 1.5], 4.0);
+    run.state = finish(&mut run, env, &env.defs(), &mut Vec::new());
+    run
+}
+
 /// A held config whose worst objective sits below the next one up is
 /// verified again with the knobs that work only for that objective raised
 /// (here the detector's CPU: detection 4 of 10 against the images' cap,
@@ -1748,11 +1759,7 @@ fn verify_det(run: Run, env: &Env<'_>, cmd: &[f64], det: f64) -> (Run, Vec<Outpu
 fn a_held_config_is_lifted_where_only_its_worst_objective_gains() {
     let (st, sp) = (stack(), two_objectives());
     let env = env(&st, &sp);
-    let mut run = with_two_trials(&env);
-    run.knobs.knobs[0].feeds = vec!["det".into()];
-    run.trials.clear();
-    push_trial(&mut run, &env, &[1.0, 1.5], 4.0);
-    run.state = finish(&mut run, &env, &env.defs(), &mut Vec::new());
+    let run = held_at_detection_4(&env);
     let held = run.knobs.to_config(&[1.0, 1.5]);
     let (lifting, out) = verify_det(run, &env, &OK, 4.0);
     assert_eq!(reasons(&out), vec!["Satisfied", "LiftingObjectives"]);
@@ -1888,11 +1895,7 @@ fn a_held_config_is_lifted_where_only_its_worst_objective_gains() {
 fn a_lift_that_shows_too_little_ends_before_its_record() {
     let (st, sp) = (stack(), two_objectives());
     let env = env(&st, &sp);
-    let mut run = with_two_trials(&env);
-    run.knobs.knobs[0].feeds = vec!["det".into()];
-    run.trials.clear();
-    push_trial(&mut run, &env, &[1.0, 1.5], 4.0);
-    run.state = finish(&mut run, &env, &env.defs(), &mut Vec::new());
+    let run = held_at_detection_4(&env);
     let (lifting, _) = verify_det(run, &env, &OK, 4.0);
     let mut bursty = lifting.clone();
     bursty.bursty = true;
