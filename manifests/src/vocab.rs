@@ -205,6 +205,9 @@ vocabulary! {
         /// A trial capped every objective but missed a core target: the
         /// initial design ends and the models choose the next trials.
         DesignEnded,
+        /// The next trial is the balanced config, computed from what the
+        /// trials measured the apps' costs at, not proposed by the models.
+        Balancing,
         /// The optimizer's stopping rule ended the search.
         TuningStopped,
         /// A trial is verified with the input of non-core apps whose

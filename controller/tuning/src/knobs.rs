@@ -725,6 +725,20 @@ impl KnobSpace {
             .collect()
     }
 
+    /// The nodes of the non-core CPU knobs, searched and pinned: the ones
+    /// a trial measures the CPU use of (`measure::with_usage`).
+    pub fn non_core_nodes(&self) -> Vec<String> {
+        self.knobs
+            .iter()
+            .chain(&self.pinned)
+            .filter(|k| k.restricts_non_core)
+            .filter_map(|k| match &k.target {
+                KnobTarget::Cpu { node } => Some(node.clone()),
+                KnobTarget::Adaptor { .. } => None,
+            })
+            .collect()
+    }
+
     /// The pinned knobs' names.
     pub fn pinned_names(&self) -> Vec<&str> {
         self.pinned.iter().map(|k| k.name.as_str()).collect()

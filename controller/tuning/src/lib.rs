@@ -7,12 +7,14 @@
 //! [`knobs`] (the knob space), [`measure`] (satisfaction and non-core
 //! performance), [`machine`] (the run as one state enum and one transition
 //! function), [`search`] (baseline → knobs → trials → the best to verify),
+//! [`balance`] (the balanced config computed from the trials' costs),
 //! [`outcome`] (verification, remediation, Unsat), [`settle`] (how long a
 //! trial waits after its config is applied), [`startup`] (waiting for the
 //! stack), [`monitor`] (constraint monitor, triggers, robot events),
 //! [`status`] (the run as PerformanceSpec status), [`library`] (contexts and
 //! ConfigProfiles).
 
+pub mod balance;
 pub mod knobs;
 pub mod library;
 pub mod machine;

@@ -343,6 +343,14 @@ pub enum State {
     RestoreApply {
         config: ResourceConfig,
     },
+    /// Let the restored config's transients pass (it was applied after a
+    /// drain) before monitoring it: the constraint monitor and a user
+    /// judge the config, not the way back to it.
+    RestoreSettle {
+        config: ResourceConfig,
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        so_far: Option<MeasureReport>,
+    },
     /// Watch the constraints; `satisfied` false after Unsat (no relearning on violations then).
     Monitor {
         satisfied: bool,
@@ -553,6 +561,10 @@ pub struct Run {
     /// being retried.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub lift_ended: bool,
+    /// The points of the balanced trials proposed so far
+    /// ([`super::balance`]), in order.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub balanced: Vec<Vec<f64>>,
 }
 
 impl Run {
@@ -605,6 +617,7 @@ impl Run {
             searched_on: 0,
             held: Vec::new(),
             lift_ended: false,
+            balanced: Vec::new(),
         }
     }
 
@@ -627,6 +640,7 @@ impl Run {
                 applied: false,
                 so_far: None,
             },
+            State::RestoreSettle { config, .. } => State::RestoreApply { config },
             s => s,
         };
         self
@@ -648,7 +662,8 @@ impl Run {
             State::VerifyApply { .. }
             | State::VerifySettle { .. }
             | State::Verify { .. }
-            | State::RestoreApply { .. } => Phase::Satisfied,
+            | State::RestoreApply { .. }
+            | State::RestoreSettle { .. } => Phase::Satisfied,
             State::UnsatApply { .. }
             | State::Monitor {
                 satisfied: false, ..
@@ -785,7 +800,9 @@ pub fn effect(run: &Run, env: &Env<'_>) -> Effect {
             ..
         } => Effect::Apply(config.clone()),
         State::Drain { so_far, .. } => probe(settle::drain_ms(so_far.as_ref())),
-        State::TrialSettle { so_far, .. } | State::VerifySettle { so_far, .. } => {
+        State::TrialSettle { so_far, .. }
+        | State::VerifySettle { so_far, .. }
+        | State::RestoreSettle { so_far, .. } => {
             match settle::next(env.spec.tuning.settle_seconds, so_far.as_ref()) {
                 Wait::Sleep(d) => Effect::Sleep(d),
                 Wait::Measure { ms } => probe(ms),
@@ -802,7 +819,10 @@ pub fn effect(run: &Run, env: &Env<'_>) -> Effect {
                 // Near the boundary: measured on to the extended length.
                 env.extended_trial_ms().saturating_sub(done)
             };
-            probe(chunk.max(1000))
+            Effect::Measure(measure::with_usage(
+                measure::request(&defs, &[], chunk.max(1000), 1000),
+                &run.knobs.non_core_nodes(),
+            ))
         }
         State::Verify { so_far: None, .. } => probe(env.verify_ms(run)),
         State::Verify {
@@ -1217,10 +1237,36 @@ pub fn step(mut run: Run, input: Input, env: &Env<'_>) -> (Run, Vec<Output>) {
             }
         }
         (State::RestoreApply { config }, Input::Applied) => {
+            if env.spec.tuning.settle_seconds > 0.0 {
+                State::RestoreSettle {
+                    config,
+                    so_far: None,
+                }
+            } else {
+                run.monitor = ConstraintMonitor::default();
+                State::Monitor {
+                    satisfied: true,
+                    config,
+                }
+            }
+        }
+        (State::RestoreSettle { config, .. }, Input::Slept) => {
             run.monitor = ConstraintMonitor::default();
             State::Monitor {
                 satisfied: true,
                 config,
+            }
+        }
+        (State::RestoreSettle { config, so_far }, Input::Measured(r)) => {
+            match settled(env, &defs, so_far.as_ref(), r, &mut out) {
+                None => {
+                    run.monitor = ConstraintMonitor::default();
+                    State::Monitor {
+                        satisfied: true,
+                        config,
+                    }
+                }
+                so_far => State::RestoreSettle { config, so_far },
             }
         }
         (State::Monitor { satisfied, config }, Input::Measured(r)) => {

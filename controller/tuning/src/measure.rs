@@ -186,6 +186,19 @@ pub fn request(
     }
 }
 
+/// The CPU use of each of `nodes`, added to a request (pure): a trial
+/// measures the non-core nodes' use beside the metrics
+/// ([`Evaluation::usage`]).
+pub fn with_usage(mut req: MeasureRequest, nodes: &[String]) -> MeasureRequest {
+    for n in nodes {
+        let p = Probe::CpuUsage { node: n.clone() };
+        if !req.probes.contains(&p) {
+            req.probes.push(p);
+        }
+    }
+    req
+}
+
 /// The latency probes of the core metrics that rate a topic as a plain
 /// subscriber sees it (pure): how late their messages arrive after the
 /// stamp in their header, the sign of a core pipeline falling behind before
@@ -496,6 +509,10 @@ pub fn lift(defs: &[MetricDef], means: &BTreeMap<String, f64>, s: Scalarization)
 pub struct Evaluation {
     /// Whole-window mean of every metric.
     pub means: BTreeMap<String, f64>,
+    /// CPUs each node a [`with_usage`] probe measured used over the window,
+    /// by node name (what `balance` fits its cost model to).
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub usage: BTreeMap<String, f64>,
     /// Optimizer-facing constraint values, in metric order (core metrics only).
     pub constraints: Vec<f64>,
     /// Each core constraint's worst window, in the same order (0 with no
@@ -540,8 +557,17 @@ pub fn evaluate(defs: &[MetricDef], report: &MeasureReport, s: Scalarization) ->
         }
     }
     let missed = windows_ok(defs, report).iter().filter(|ok| !**ok).count();
+    let usage = report
+        .series
+        .iter()
+        .filter_map(|p| match &p.probe {
+            Probe::CpuUsage { node } => Some((node.clone(), p.mean)),
+            _ => None,
+        })
+        .collect();
     Evaluation {
         objective: scalarize(defs, &means, s),
+        usage,
         satisfaction: satisfaction(defs, report),
         missed: u32::try_from(missed).unwrap_or(u32::MAX),
         means,

@@ -1390,7 +1390,8 @@ pub fn lift_short(
 }
 
 /// Goes back to the config the last lift raised (`Run::held`), drained
-/// first, and settles on it as its verification measured it.
+/// first and settled after (`State::RestoreSettle`), and keeps it as its
+/// verification measured it.
 pub(crate) fn restore(
     run: &mut Run,
     env: &Env<'_>,

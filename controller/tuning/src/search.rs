@@ -404,11 +404,64 @@ pub(crate) fn next_trial(
             ));
             o.end_design();
         }
+        if let Some(next) = balance_next(run, env, defs, out) {
+            return next;
+        }
         if let Some(next) = ask(run, env, out) {
             return next;
         }
     }
     finish(run, env, defs, out)
+}
+
+/// Balanced trials one run measures at most: the first from the initial
+/// design's costs, the next ones refitted with what the last measured.
+pub const BALANCE_TRIES: usize = 3;
+/// The non-core CPU a balanced config may use is scaled by this for each
+/// balanced trial that missed a core target.
+pub const BALANCE_SHRINK: f64 = 0.85;
+
+/// The balanced config ([`super::balance::balanced`]) as the next trial,
+/// once the initial design is measured, under max-min scalarisation, from
+/// the best trial so far; at most [`BALANCE_TRIES`] per run. `None` when
+/// there is none, or when it promises no more than the best trial
+/// measured.
+fn balance_next(
+    run: &mut Run,
+    env: &Env<'_>,
+    defs: &[MetricDef],
+    out: &mut Vec<Output>,
+) -> Option<State> {
+    use configbot_manifests::performance_spec::Scalarization;
+    if env.spec.tuning.scalarization != Scalarization::MaxMin
+        || run.balanced.len() >= BALANCE_TRIES
+        || run.optimizer.as_ref()?.design_left() > 0
+    {
+        return None;
+    }
+    let base = best_trial(run)?;
+    let missed = run
+        .trials
+        .iter()
+        .filter(|t| run.balanced.contains(&t.x) && !t.feasible())
+        .count();
+    let shrink = BALANCE_SHRINK.powi(i32::try_from(missed).unwrap_or(i32::MAX));
+    let b = super::balance::balanced(&run.knobs, defs, &run.trials, &run.trials[base], shrink)?;
+    let best = run.trials[base].eval.objective.unwrap_or(0.0);
+    if b.level <= best {
+        return None;
+    }
+    out.push(normal(
+        Reason::Balancing,
+        format!(
+            "trial {}: the balanced config from trial {base} (objective {best:.3}), {}",
+            run.trials.len(),
+            b.text()
+        ),
+    ));
+    run.balanced.push(b.x.clone());
+    let config = run.knobs.to_config(&b.x);
+    Some(drain_first(run, env, State::TrialApply { x: b.x, config }))
 }
 
 /// The optimizer's next proposal as the run's next trial (after a drain),

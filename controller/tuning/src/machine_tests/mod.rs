@@ -144,6 +144,7 @@ fn name(s: &State) -> &'static str {
         State::Verify { .. } => "Verify",
         State::UnsatApply { .. } => "UnsatApply",
         State::RestoreApply { .. } => "RestoreApply",
+        State::RestoreSettle { .. } => "RestoreSettle",
         State::Monitor { .. } => "Monitor",
         State::RemediatePause { .. } => "RemediatePause",
         State::RemediateApply { .. } => "RemediateApply",

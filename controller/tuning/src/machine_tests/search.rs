@@ -1072,8 +1072,11 @@ fn a_trial_near_the_boundary_is_measured_longer_not_discarded() {
     assert_eq!(p.duration_ms, 5000);
     assert_eq!(
         effect(&run, &env),
-        Effect::Measure(measure::request(&env.defs(), &[], 5000, 1000)),
-        "on to ten windows"
+        Effect::Measure(measure::with_usage(
+            measure::request(&env.defs(), &[], 5000, 1000),
+            &run.knobs.non_core_nodes()
+        )),
+        "on to ten windows, the non-core nodes' CPU use beside the metrics"
     );
     // Five steadier windows: the ten windows' bound holds (35.5); feasible.
     let steady = [39.0, 38.0, 39.0, 39.0, 38.0];
@@ -1843,6 +1846,8 @@ fn a_held_config_is_lifted_where_only_its_worst_objective_gains() {
     );
     assert_eq!(back.applied, Some(Candidate::Trial { index: 0 }));
     let (back, _) = step(back, Input::Applied, &env);
+    assert_eq!(name(&back.state), "RestoreSettle", "settles before monitoring");
+    let (back, _) = step(back, Input::Slept, &env);
     assert_eq!(
         back.state,
         State::Monitor {
