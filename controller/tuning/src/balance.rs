@@ -218,11 +218,11 @@ pub fn balanced(
         return None;
     }
     let balanced_nodes: Vec<&String> = own.iter().map(|(_, _, n)| n).collect();
-    let others: f64 = nodes
+    let others = nodes
         .iter()
         .filter(|n| !balanced_nodes.contains(n))
         .map(|n| base.eval.usage[n])
-        .sum();
+        .fold(0.0, |a, u| a + u);
     let target = |m: &str| objectives.iter().find(|d| d.name == m).map_or(0.0, |d| d.target);
     // CPUs per unit of level: each app's share costs its output at the
     // level plus the input that output needs.

@@ -1917,3 +1917,90 @@ fn a_lift_that_shows_too_little_ends_before_its_record() {
     );
     assert_eq!(name(&back.state), "RestoreApply");
 }
+
+/// The harness stack with the camera in the core app: the detector's CPU
+/// and its input are the only non-core knobs, both working for `det` alone.
+fn camera_in_core() -> RobotStack {
+    let n = |name: &str| serde_json::json!({"name": name, "run": {"command": "x"}});
+    serde_json::from_value(serde_json::json!({
+        "apiVersion": "configbot.dev/v1alpha1", "kind": "RobotStack", "metadata": {"name": "s"},
+        "spec": {"robot": {"model": "m", "cpus": 2}, "apps": [
+            {"name": "nav", "core": true, "nodes": [n("/planner"), n("/camera")]},
+            {"name": "det", "nodes": [n("/detector")]}]}
+    }))
+    .unwrap()
+}
+
+/// What a detector costing 0.05 CPU per detection and 0.02 per frame
+/// measures at `config`: as many detections as its frames (it drops one
+/// in ten) and CPU allow,
+/// the CPU it used, and cmd on target while it uses under 0.6 CPU.
+fn detector_at(config: &ResourceConfig) -> Input {
+    let cpu = config.cpu.get("/detector").copied().unwrap_or(2.0);
+    let frames = config
+        .adaptors
+        .iter()
+        .find(|a| a.subscriber == "/detector")
+        .map_or(30.0, |a| a.rate_hz);
+    let det = (0.9 * frames).min((cpu - 0.02 * frames).max(0.0) / 0.05);
+    let used = (0.05 * det + 0.02 * frames).min(cpu);
+    let cmd = if used < 0.6 { OK } else { BAD };
+    let Input::Measured(mut r) = report(&cmd, det) else {
+        unreachable!()
+    };
+    r.series.push(ProbeSeries {
+        probe: Probe::CpuUsage {
+            node: "/detector".into(),
+        },
+        values: vec![used; cmd.len()],
+        mean: used,
+    });
+    Input::Measured(r)
+}
+
+#[test]
+fn once_the_design_is_measured_balanced_trials_are_measured_where_the_run_says() {
+    let (st, sp) = (camera_in_core(), spec(0.0, 20));
+    let env = env(&st, &sp);
+    let mut run = with(State::Baseline {
+        graph: graph(),
+        prior: None,
+    });
+    let mut input = detector_at(&ResourceConfig::default());
+    // Each balanced event: the trials measured by then and the design
+    // points left.
+    let mut balancing = Vec::new();
+    for _ in 0..200 {
+        let out;
+        (run, out) = step(run, input, &env);
+        for o in &out {
+            if let Output::Event {
+                reason: Reason::Balancing,
+                message,
+                ..
+            } = o
+            {
+                assert!(message.contains("det"), "{message}");
+                let left = run.optimizer.as_ref().unwrap().design_left();
+                balancing.push((run.trials.len(), left));
+            }
+        }
+        input = match &run.state {
+            State::TrialApply { .. } | State::Drain { applied: false, .. } => Input::Applied,
+            State::TrialProfile { config, .. } | State::Drain { config, .. } => {
+                detector_at(config)
+            }
+            _ => break,
+        };
+    }
+    // The detector wastes CPU on frames it cannot use in most trials, so
+    // some balanced config promises more than the best trial so far.
+    assert!(!balancing.is_empty(), "no balanced trial in {:?}", run.trials.len());
+    assert!(balancing.len() <= crate::search::BALANCE_TRIES);
+    assert_eq!(balancing.len(), run.balanced.len());
+    for ((at, left), x) in balancing.iter().zip(&run.balanced) {
+        assert_eq!(*left, 0, "only once the initial design is measured");
+        assert_eq!(&run.trials[*at].x, x, "the trial after the event is the balanced one");
+        assert!(!run.trials[*at].eval.usage.is_empty(), "its CPU use measured");
+    }
+}
