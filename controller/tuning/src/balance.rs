@@ -161,7 +161,8 @@ pub fn balanced(
     shrink: f64,
 ) -> Option<Balanced> {
     let nodes = knobs.non_core_nodes();
-    let measured = |t: &&TrialRecord| !t.censored && nodes.iter().all(|n| t.eval.usage.contains_key(n));
+    let measured =
+        |t: &&TrialRecord| !t.censored && nodes.iter().all(|n| t.eval.usage.contains_key(n));
     let used = |t: &TrialRecord| nodes.iter().map(|n| t.eval.usage[n]).sum::<f64>();
     let budget = trials
         .iter()
@@ -223,7 +224,12 @@ pub fn balanced(
         .filter(|n| !balanced_nodes.contains(n))
         .map(|n| base.eval.usage[n])
         .fold(0.0, |a, u| a + u);
-    let target = |m: &str| objectives.iter().find(|d| d.name == m).map_or(0.0, |d| d.target);
+    let target = |m: &str| {
+        objectives
+            .iter()
+            .find(|d| d.name == m)
+            .map_or(0.0, |d| d.target)
+    };
     // CPUs per unit of level: each app's share costs its output at the
     // level plus the input that output needs.
     let per_level: f64 = apps
@@ -417,13 +423,21 @@ mod tests {
         let less = balanced(&k, &d, &trials, &trials[0], 0.5).unwrap();
         assert!(less.level < b.level && less.x[1] < b.x[1] && less.x[3] < b.x[3]);
         // Once measured as planned, it is not proposed again.
-        let outs: Vec<(&str, f64)> = b.apps.iter().map(|p| (p.metric.as_str(), p.output)).collect();
+        let outs: Vec<(&str, f64)> = b
+            .apps
+            .iter()
+            .map(|p| (p.metric.as_str(), p.output))
+            .collect();
         let cost = |p: &App| p.a * p.output + p.b * p.input;
         let mut seen = trials.clone();
         seen.push(trial(
             &b.x,
             &outs,
-            &[("/flow", cost(flow)), ("/lines", cost(lines)), ("/debug", 0.05)],
+            &[
+                ("/flow", cost(flow)),
+                ("/lines", cost(lines)),
+                ("/debug", 0.05),
+            ],
         ));
         assert_eq!(balanced(&k, &d, &seen, &trials[0], 1.0), None);
         // An app that puts out half of what it takes in is fed twice as much.
@@ -463,7 +477,11 @@ mod tests {
     fn no_balanced_config_without_the_apps_cpu_use_or_enough_trials() {
         let k = space(vec![]);
         let d = defs(&[("flow", 4.0), ("lines", 1.0)]);
-        let x = [[0.3, 20.0, 0.3, 20.0], [0.2, 2.0, 0.4, 10.0], [0.35, 25.0, 0.2, 3.0]];
+        let x = [
+            [0.3, 20.0, 0.3, 20.0],
+            [0.2, 2.0, 0.4, 10.0],
+            [0.35, 25.0, 0.2, 3.0],
+        ];
         let mut trials: Vec<TrialRecord> = x.iter().map(|x| modelled(x, 1.0)).collect();
         assert!(balanced(&k, &d, &trials, &trials[0], 1.0).is_some());
         // Two trials are too few to fit a cost model to.

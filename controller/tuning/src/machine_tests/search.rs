@@ -1846,7 +1846,11 @@ fn a_held_config_is_lifted_where_only_its_worst_objective_gains() {
     );
     assert_eq!(back.applied, Some(Candidate::Trial { index: 0 }));
     let (back, _) = step(back, Input::Applied, &env);
-    assert_eq!(name(&back.state), "RestoreSettle", "settles before monitoring");
+    assert_eq!(
+        name(&back.state),
+        "RestoreSettle",
+        "settles before monitoring"
+    );
     let (back, _) = step(back, Input::Slept, &env);
     assert_eq!(
         back.state,
@@ -1987,20 +1991,28 @@ fn once_the_design_is_measured_balanced_trials_are_measured_where_the_run_says()
         }
         input = match &run.state {
             State::TrialApply { .. } | State::Drain { applied: false, .. } => Input::Applied,
-            State::TrialProfile { config, .. } | State::Drain { config, .. } => {
-                detector_at(config)
-            }
+            State::TrialProfile { config, .. } | State::Drain { config, .. } => detector_at(config),
             _ => break,
         };
     }
     // The detector wastes CPU on frames it cannot use in most trials, so
     // some balanced config promises more than the best trial so far.
-    assert!(!balancing.is_empty(), "no balanced trial in {:?}", run.trials.len());
+    assert!(
+        !balancing.is_empty(),
+        "no balanced trial in {:?}",
+        run.trials.len()
+    );
     assert!(balancing.len() <= crate::search::BALANCE_TRIES);
     assert_eq!(balancing.len(), run.balanced.len());
     for ((at, left), x) in balancing.iter().zip(&run.balanced) {
         assert_eq!(*left, 0, "only once the initial design is measured");
-        assert_eq!(&run.trials[*at].x, x, "the trial after the event is the balanced one");
-        assert!(!run.trials[*at].eval.usage.is_empty(), "its CPU use measured");
+        assert_eq!(
+            &run.trials[*at].x, x,
+            "the trial after the event is the balanced one"
+        );
+        assert!(
+            !run.trials[*at].eval.usage.is_empty(),
+            "its CPU use measured"
+        );
     }
 }
