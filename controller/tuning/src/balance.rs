@@ -150,9 +150,11 @@ pub fn fit(points: &[(f64, f64, f64)]) -> Option<(f64, f64)> {
 /// The balanced config from `trials`, its other knobs as in `base` (pure;
 /// see the module docs), with the CPU the trials' non-core apps used
 /// together scaled by `shrink` (less than 1 after a balanced trial missed a
-/// core target). Under max-min only; `None` when no objective has an app of
-/// its own with a cost model, when the budget leaves nothing for them, or
-/// when the config is one a trial already measured.
+/// core target). Meant for max-min scalarisation, where only the worst
+/// share counts (`search::balance_next` asks for it there alone). `None`
+/// when no objective has an app of its own with a cost model, when the
+/// budget leaves nothing for them, or when the config is one a trial
+/// already measured.
 pub fn balanced(
     knobs: &KnobSpace,
     defs: &[MetricDef],
