@@ -47,6 +47,10 @@ pub const MIN_FIT: usize = 3;
 #[derive(Debug, Clone, PartialEq)]
 pub struct App {
     pub metric: String,
+    /// Its node, and the indices of its CPU knob and input knob.
+    pub node: String,
+    pub cpu_knob: usize,
+    pub input_knob: usize,
     /// CPUs per message put out.
     pub a: f64,
     /// CPUs per message taken in.
@@ -182,7 +186,6 @@ pub fn balanced(
         .filter(|d| matches!(d.probe, Probe::TopicRate { .. }))
         .collect();
     let mut apps = Vec::new();
-    let mut own = Vec::new();
     for d in &objectives {
         let Some((c, i, node)) = own_knobs(knobs, &d.name) else {
             continue;
@@ -206,9 +209,11 @@ pub fn balanced(
             .iter()
             .map(|(o, i, _)| (o / i).min(1.0))
             .fold(MIN_YIELD, f64::max);
-        own.push((c, i, node));
         apps.push(App {
             metric: d.name.clone(),
+            node,
+            cpu_knob: c,
+            input_knob: i,
             a,
             b,
             yield_,
@@ -220,10 +225,9 @@ pub fn balanced(
     if apps.is_empty() {
         return None;
     }
-    let balanced_nodes: Vec<&String> = own.iter().map(|(_, _, n)| n).collect();
     let others = nodes
         .iter()
-        .filter(|n| !balanced_nodes.contains(n))
+        .filter(|n| !apps.iter().any(|p| &p.node == *n))
         .map(|n| base.eval.usage[n])
         .fold(0.0, |a, u| a + u);
     let target = |m: &str| {
@@ -253,13 +257,13 @@ pub fn balanced(
         .min(LEVEL_CAP)
         .min(rest * measure::LIFT_TIE);
     let mut x = base.x.clone();
-    for (p, (c, i, _)) in apps.iter_mut().zip(&own) {
-        let (kc, ki) = (&knobs.knobs[*c], &knobs.knobs[*i]);
+    for p in &mut apps {
+        let (kc, ki) = (&knobs.knobs[p.cpu_knob], &knobs.knobs[p.input_knob]);
         p.output = level * target(&p.metric);
         p.input = (p.output * INPUT_HEADROOM / p.yield_).clamp(ki.min, ki.max);
         p.cpu = ((p.a * p.output + p.b * p.input) * CPU_HEADROOM).clamp(kc.min, kc.max);
-        x[*c] = p.cpu;
-        x[*i] = p.input;
+        x[p.cpu_knob] = p.cpu;
+        x[p.input_knob] = p.input;
     }
     let x = knobs.from_config(&knobs.to_config(&x));
     let seen = trials.iter().any(|t| {

@@ -773,6 +773,16 @@ fn new_context(t: Trigger) -> State {
     }
 }
 
+/// Monitoring a restored config (`State::RestoreApply`), with a fresh
+/// constraint monitor: it held its verification.
+fn monitor_restored(run: &mut Run, config: ResourceConfig) -> State {
+    run.monitor = ConstraintMonitor::default();
+    State::Monitor {
+        satisfied: true,
+        config,
+    }
+}
+
 /// The effect of the current state.
 pub fn effect(run: &Run, env: &Env<'_>) -> Effect {
     let defs = env.defs();
@@ -1243,29 +1253,13 @@ pub fn step(mut run: Run, input: Input, env: &Env<'_>) -> (Run, Vec<Output>) {
                     so_far: None,
                 }
             } else {
-                run.monitor = ConstraintMonitor::default();
-                State::Monitor {
-                    satisfied: true,
-                    config,
-                }
+                monitor_restored(&mut run, config)
             }
         }
-        (State::RestoreSettle { config, .. }, Input::Slept) => {
-            run.monitor = ConstraintMonitor::default();
-            State::Monitor {
-                satisfied: true,
-                config,
-            }
-        }
+        (State::RestoreSettle { config, .. }, Input::Slept) => monitor_restored(&mut run, config),
         (State::RestoreSettle { config, so_far }, Input::Measured(r)) => {
             match settled(env, &defs, so_far.as_ref(), r, &mut out) {
-                None => {
-                    run.monitor = ConstraintMonitor::default();
-                    State::Monitor {
-                        satisfied: true,
-                        config,
-                    }
-                }
+                None => monitor_restored(&mut run, config),
                 so_far => State::RestoreSettle { config, so_far },
             }
         }

@@ -14,12 +14,23 @@ use configbot_manifests::{PerformanceSpec, RobotStack};
 use super::*;
 
 fn stack() -> RobotStack {
-    let n = |name: &str| serde_json::json!({"name": name, "run": {"command": "x"}});
+    stack_of(&["/planner"], &["/camera", "/detector"])
+}
+
+/// The harness stack with `nav`'s nodes in the core app and `det`'s in the
+/// non-core one.
+fn stack_of(nav: &[&str], det: &[&str]) -> RobotStack {
+    let n = |names: &[&str]| -> Vec<serde_json::Value> {
+        names
+            .iter()
+            .map(|name| serde_json::json!({"name": name, "run": {"command": "x"}}))
+            .collect()
+    };
     serde_json::from_value(serde_json::json!({
         "apiVersion": "configbot.dev/v1alpha1", "kind": "RobotStack", "metadata": {"name": "s"},
         "spec": {"robot": {"model": "m", "cpus": 2}, "apps": [
-            {"name": "nav", "core": true, "nodes": [n("/planner")]},
-            {"name": "det", "nodes": [n("/camera"), n("/detector")]}]}
+            {"name": "nav", "core": true, "nodes": n(nav)},
+            {"name": "det", "nodes": n(det)}]}
     }))
     .unwrap()
 }

@@ -1925,14 +1925,7 @@ fn a_lift_that_shows_too_little_ends_before_its_record() {
 /// The harness stack with the camera in the core app: the detector's CPU
 /// and its input are the only non-core knobs, both working for `det` alone.
 fn camera_in_core() -> RobotStack {
-    let n = |name: &str| serde_json::json!({"name": name, "run": {"command": "x"}});
-    serde_json::from_value(serde_json::json!({
-        "apiVersion": "configbot.dev/v1alpha1", "kind": "RobotStack", "metadata": {"name": "s"},
-        "spec": {"robot": {"model": "m", "cpus": 2}, "apps": [
-            {"name": "nav", "core": true, "nodes": [n("/planner"), n("/camera")]},
-            {"name": "det", "nodes": [n("/detector")]}]}
-    }))
-    .unwrap()
+    stack_of(&["/planner", "/camera"], &["/detector"])
 }
 
 /// What a detector costing 0.05 CPU per detection and 0.02 per frame
