@@ -220,14 +220,9 @@ vocabulary! {
         LiftingObjectives,
         /// A config failed its verification.
         VerificationFailed,
-        /// A verification missed in bursts (the candidate is verified
-        /// again), or a trial did, or the run's weight test showed the
-        /// weight pays: the core nodes are weighted from now on.
+        /// A verification missed in bursts: the core nodes are weighted
+        /// from now on and the candidate is verified again.
         CoreWeighted,
-        /// A trial missed a core target on average: its config is measured
-        /// again with the core nodes weighted; or that measurement showed
-        /// the weight does not pay.
-        WeighingCore,
         /// A rejected best trial is verified again with its knobs backed off.
         BackingOff,
         /// A held config tipped, or a measured trial promises more than a

@@ -405,14 +405,7 @@ impl KnobSpace {
         if !self.weighted {
             return BTreeMap::new();
         }
-        self.with_core_weight(ResourceConfig::default()).cpu_weight
-    }
-
-    /// `cfg` with every core node at [`CORE_WEIGHT`], weighted run or not
-    /// (what the run's weight test measures: `search::weight_next`).
-    pub fn with_core_weight(&self, mut cfg: ResourceConfig) -> ResourceConfig {
-        cfg.cpu_weight = self.core.iter().map(|n| (n.clone(), CORE_WEIGHT)).collect();
-        cfg
+        self.core.iter().map(|n| (n.clone(), CORE_WEIGHT)).collect()
     }
 
     /// A trial's config as the run applies it now: with the core nodes'

@@ -512,8 +512,7 @@ pub struct Run {
     #[serde(default)]
     pub tip_retried: bool,
     /// The trial that measures the most restrictive config (every non-core
-    /// knob at its minimum, the core nodes weighted) when the baseline
-    /// missed a core target: if it
+    /// knob at its minimum) when the baseline missed a core target: if it
     /// misses too, no config can meet it (see [`super::search`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub corner_trial: Option<usize>,
@@ -566,20 +565,6 @@ pub struct Run {
     /// ([`super::balance`]), in order.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub balanced: Vec<Vec<f64>>,
-    /// The run's one measurement of what weighting the core nodes gives
-    /// (see `search::weight_next`), once proposed.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub weight_test: Option<WeightTest>,
-}
-
-/// Trial `twin` measures the point of trial `of`, which missed a core
-/// target on average unweighted, with the core nodes weighted
-/// ([`super::knobs::CORE_WEIGHT`]); what the two measured decides whether
-/// the run weights them (`outcome::weight_pays`).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct WeightTest {
-    pub of: usize,
-    pub twin: usize,
 }
 
 impl Run {
@@ -633,7 +618,6 @@ impl Run {
             held: Vec::new(),
             lift_ended: false,
             balanced: Vec::new(),
-            weight_test: None,
         }
     }
 

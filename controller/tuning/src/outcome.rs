@@ -764,57 +764,6 @@ pub fn bursts(defs: &[MetricDef], eval: &measure::Evaluation) -> bool {
             .all(|d| eval.means.get(&d.name).is_some_and(|&m| d.holds(m)))
 }
 
-/// Whether a measurement missed some core target on average (pure): some
-/// core metric's mean over it is on the wrong side of its target. Not a
-/// burst ([`bursts`]): the core nodes lacked CPU for most of it.
-pub fn missed_on_average(defs: &[MetricDef], eval: &measure::Evaluation) -> bool {
-    defs.iter()
-        .filter(|d| d.core)
-        .any(|d| !eval.means.get(&d.name).is_some_and(|&m| d.holds(m)))
-}
-
-/// The share of a trial's objective its weighted twin must keep for the
-/// run to weight its core nodes ([`weight_pays`]). A weight gives the core
-/// nodes whatever CPU they ask for; where they ask for more than their
-/// targets need, it is taken from the non-core apps: on Basic-NAV the
-/// navigation node serves a debugging callback at full rate under the
-/// weight, and its detector fell from 4.3 Hz to 1.35–3.5 Hz (sessions 35
-/// and 46, 2026-12-01), a capped objective of 1.0 to 0.45. The share is
-/// loose because a 5 s trial counts 1–3 messages of a 0.3–0.5 Hz
-/// objective (real-two-paths), whose objective moves in steps of 0.4.
-pub const WEIGHT_KEEPS: f64 = 0.5;
-
-/// Whether the core nodes' weight pays, from trial `unweighted`, which
-/// missed a core target on average ([`missed_on_average`]), and its
-/// `weighted` twin at the same point (pure): `Ok` with the reason when the
-/// twin is complete, met every core target and kept [`WEIGHT_KEEPS`] of the
-/// objective; `Err` with the reason when not.
-pub fn weight_pays(
-    unweighted: &measure::Evaluation,
-    weighted: &measure::Evaluation,
-    weighted_complete: bool,
-) -> Result<String, String> {
-    let objective = |e: &measure::Evaluation| e.objective.unwrap_or(0.0);
-    let (u, w) = (objective(unweighted), objective(weighted));
-    let measured = format!(
-        "weighted it held {:.1} % of the windows at objective {w:.3}, unweighted {:.1} % at {u:.3}",
-        weighted.satisfaction * 100.0,
-        unweighted.satisfaction * 100.0
-    );
-    if !weighted_complete || !weighted.feasible {
-        return Err(format!(
-            "{measured}: the weight does not meet the core targets"
-        ));
-    }
-    if w < WEIGHT_KEEPS * u {
-        return Err(format!(
-            "{measured}: the weight costs the objectives more than {:.0} %",
-            (1.0 - WEIGHT_KEEPS) * 100.0
-        ));
-    }
-    Ok(measured)
-}
-
 /// Windows a run's measurements must have missed in bursts ([`bursts`]),
 /// together, before the run counts as bursty and weights its core nodes:
 /// the weight holds for the rest of the run and costs the non-core apps

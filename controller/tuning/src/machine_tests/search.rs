@@ -891,9 +891,6 @@ fn baseline_then_first_trial(env: &Env<'_>, base: &[f64], first: Input) -> (Run,
     let lows: Vec<f64> = run.knobs.knobs.iter().map(|k| k.min).collect();
     assert_eq!(x, &lows);
     assert_eq!(config.cpu["/detector"], 0.05);
-    // ... with the core nodes weighted, though the run is not.
-    assert_eq!(config.cpu_weight.get("/planner"), Some(&knobs::CORE_WEIGHT));
-    assert!(!run.knobs.weighted);
     let (run, _) = step(run, Input::Applied, env);
     step(run, first, env)
 }
@@ -926,16 +923,34 @@ fn a_feasible_restrictive_corner_goes_on_searching_from_it() {
 }
 
 #[test]
-fn a_corner_that_missed_in_bursts_ends_unsat_too() {
+fn a_corner_that_missed_in_bursts_is_measured_again_weighted_before_any_verdict() {
     let (st, sp) = (stack(), spec(0.0, 20));
     let env = env(&st, &sp);
-    // Three windows of five on target, the mean (37) above 35: bursts,
-    // with the core nodes weighted already.
+    // Three windows of five on target, the mean (37) above 35: bursts.
     let bursty = [40.0, 40.0, 30.0, 30.0, 45.0];
     let (run, out) = baseline_then_first_trial(&env, &BAD, report(&bursty, 0.0));
-    assert_eq!(reasons(&out), vec!["Trial", "CoreWeighted", "Unsat"]);
-    assert_eq!(run.trials.len(), 1);
-    assert_eq!(name(&run.state), "UnsatApply");
+    assert_eq!(
+        reasons(&out),
+        vec!["Trial", "CoreWeighted", "FeasibilityFirst"]
+    );
+    assert!(event_text(&out[2]).contains("again with the core nodes weighted"));
+    let State::TrialApply { x, config } = &run.state else {
+        panic!("{:?}", run.state)
+    };
+    assert_eq!(x, &run.trials[0].x, "the corner again");
+    assert_eq!(config.cpu_weight.get("/planner"), Some(&knobs::CORE_WEIGHT));
+    assert_eq!(run.corner_trial, Some(1));
+    // Weighted, it misses clearly: now the verdict.
+    let (again, _) = step(run.clone(), Input::Applied, &env);
+    let (again, out) = step(again, report(&[30.0; 5], 0.0), &env);
+    assert_eq!(reasons(&out), vec!["Trial", "Unsat"]);
+    assert_eq!(name(&again.state), "UnsatApply");
+    // Weighted, it holds: the search goes on from it.
+    let (run, _) = step(run, Input::Applied, &env);
+    let (run, out) = step(run, report(&OK, 2.0), &env);
+    assert_eq!(reasons(&out), vec!["Trial"]);
+    assert_eq!(name(&run.state), "TrialApply");
+    assert_eq!(run.trials.len(), 2);
 }
 
 #[test]
@@ -1021,90 +1036,22 @@ fn a_capped_trial_that_misses_a_core_target_ends_the_initial_design() {
     // The design's next point gives the detector its 10 Hz cap and starves cmd.
     let (run, _) = step(run, Input::Applied, &env);
     let (run, out) = step(run, report(&[20.0; 5], 10.0), &env);
-    // (It missed on average, so the run's weight test measures it next.)
-    assert_eq!(reasons(&out), vec!["Trial", "DesignEnded", "WeighingCore"]);
+    assert_eq!(reasons(&out), vec!["Trial", "DesignEnded"]);
     assert!(!run.trials[1].feasible() && !run.trials[1].censored);
     assert!(
         event_text(&out[1]).contains("trial 1 gives every objective its cap"),
         "{out:?}"
     );
     assert_eq!(run.optimizer.as_ref().unwrap().design_left(), 0);
+    assert_eq!(name(&run.state), "TrialApply", "the models' proposal");
     // An uncapped miss leaves the design alone.
     let (run, out) = baseline_then_first_trial(&env, &BAD, report(&OK, 2.0));
     assert_eq!(reasons(&out), vec!["Trial"]);
     let left = run.optimizer.as_ref().unwrap().design_left();
     let (run, _) = step(run, Input::Applied, &env);
     let (run, out) = step(run, report(&[20.0; 5], 5.0), &env);
-    assert_eq!(reasons(&out), vec!["Trial", "WeighingCore"]);
-    assert_eq!(
-        run.optimizer.as_ref().unwrap().design_left(),
-        left,
-        "the twin is no design point"
-    );
-}
-
-/// The state after the baseline missed, its corner held, and trial 1
-/// missed cmd on average (20 Hz against 35) with the detector at 5 Hz:
-/// the weight test's twin, applying trial 1's point with the core weighted.
-fn weight_test_applying(env: &Env<'_>) -> (Run, Vec<Output>) {
-    let (run, _) = baseline_then_first_trial(env, &BAD, report(&OK, 2.0));
-    let (run, _) = step(run, Input::Applied, env);
-    step(run, report(&[20.0; 5], 5.0), env)
-}
-
-#[test]
-fn a_trial_that_misses_on_average_is_measured_again_with_the_core_weighted() {
-    let (st, sp) = (stack(), spec(0.0, 20));
-    let env = env(&st, &sp);
-    let (run, out) = weight_test_applying(&env);
-    assert_eq!(reasons(&out), vec!["Trial", "WeighingCore"]);
-    assert!(
-        event_text(&out[1]).contains("trial 1 missed a core target on average"),
-        "{out:?}"
-    );
-    assert_eq!(run.weight_test, Some(WeightTest { of: 1, twin: 2 }));
-    let State::TrialApply { x, config } = &run.state else {
-        panic!("{:?}", run.state)
-    };
-    assert_eq!(x, &run.trials[1].x, "trial 1's point");
-    assert_eq!(config.cpu, run.trials[1].config.cpu);
-    assert_eq!(
-        config.cpu_weight,
-        std::collections::BTreeMap::from([("/planner".to_string(), knobs::CORE_WEIGHT)])
-    );
-    assert!(!run.knobs.weighted, "not before the twin is measured");
-
-    // The twin holds and keeps the objective: the run is weighted from now on.
-    let (held, _) = step(run.clone(), Input::Applied, &env);
-    let (held, out) = step(held, report(&OK, 5.0), &env);
-    assert_eq!(reasons(&out)[..2], ["Trial", "CoreWeighted"], "{out:?}");
-    assert!(held.knobs.weighted);
-    if let State::TrialApply { config, .. } = &held.state {
-        assert!(!config.cpu_weight.is_empty(), "the next trial is weighted");
-    }
-
-    // The twin holds but its detector falls below half: no weight.
-    let (costly, _) = step(run.clone(), Input::Applied, &env);
-    let (costly, out) = step(costly, report(&OK, 2.0), &env);
-    assert_eq!(reasons(&out)[..2], ["Trial", "WeighingCore"], "{out:?}");
-    assert!(
-        event_text(&out[1]).contains("costs the objectives more than 50 %"),
-        "{out:?}"
-    );
-    assert!(!costly.knobs.weighted);
-
-    // The twin misses too: no weight, and no second test.
-    let (missed, _) = step(run, Input::Applied, &env);
-    let (missed, out) = step(missed, report(&BAD, 5.0), &env);
-    assert_eq!(reasons(&out)[..2], ["Trial", "WeighingCore"], "{out:?}");
-    assert!(
-        event_text(&out[1]).contains("does not meet the core targets"),
-        "{out:?}"
-    );
-    assert!(!missed.knobs.weighted);
-    if let State::TrialApply { config, .. } = &missed.state {
-        assert!(config.cpu_weight.is_empty(), "the next trial is unweighted");
-    }
+    assert_eq!(reasons(&out), vec!["Trial"]);
+    assert_eq!(run.optimizer.as_ref().unwrap().design_left(), left - 1);
 }
 
 #[test]
@@ -2015,12 +1962,6 @@ fn once_the_design_is_measured_balanced_trials_are_measured_where_the_run_says()
     let mut run = with(State::Baseline {
         graph: graph(),
         prior: None,
-    });
-    // The weight test is another test's subject (this harness ignores
-    // weights): this run counts as having had it.
-    run.weight_test = Some(WeightTest {
-        of: usize::MAX,
-        twin: usize::MAX,
     });
     let mut input = detector_at(&ResourceConfig::default());
     // Each balanced event: the trials measured by then and the design
