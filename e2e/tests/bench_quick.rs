@@ -406,7 +406,8 @@ fn quick_bench_on_a_real_stack_writes_every_row_and_the_oracle() {
 }
 
 /// `--oracle-from`: a second bench takes the first one's oracle (every
-/// measured config, its best as the oracle row) without measuring it, and
+/// measured config, its best as the oracle row) without measuring it,
+/// measures that best config again on this machine (`oracle-here`), and
 /// refuses one measured for other manifests before it writes anything.
 fn reused_oracle(first: &Path, oracle: &Value) {
     let out = tempfile::tempdir().expect("temp dir");
@@ -423,7 +424,7 @@ fn reused_oracle(first: &Path, oracle: &Value) {
         &log,
         &[&args[..], &[first.to_str().unwrap()]].concat(),
     );
-    let printed = finish(&mut bench, &log, Duration::from_secs(120));
+    let printed = finish(&mut bench, &log, Duration::from_secs(300));
     assert!(printed.contains("not measured again"), "{printed}");
     let again: Value = serde_json::from_str(
         &std::fs::read_to_string(out.path().join("oracle-real-perception.json"))
@@ -447,12 +448,25 @@ fn reused_oracle(first: &Path, oracle: &Value) {
     .expect("bench.json is JSON");
     let rows = json["results"].as_array().expect("results");
     let methods: Vec<&str> = rows.iter().filter_map(|r| r["method"].as_str()).collect();
+    // The reused best config is measured again here (oracle-here), and the
+    // bench says how it compares with the file's.
     let expected: &[&str] = if oracle["best"].is_null() {
         &[]
     } else {
-        &["oracle"]
+        assert!(
+            printed.contains("its best config gave") && printed.contains("where it was measured"),
+            "{printed}"
+        );
+        &["oracle", "oracle-here"]
     };
     assert_eq!(methods, expected, "{rows:?}");
+    if let Some(here) = rows.iter().find(|r| r["method"] == "oracle-here") {
+        assert_eq!(here["config"], oracle["best"]["config"], "{here}");
+        assert!(printed.contains("X HERE"), "{printed}");
+        // The check is kept with the oracle it judged.
+        assert!(again["here"]["stands"].is_boolean(), "{again}");
+        assert!(again["here"]["note"].is_string(), "{again}");
+    }
     // Measured for other manifests: refused, with nothing written.
     let other = tempfile::tempdir().expect("temp dir");
     let mut tampered = oracle.clone();

@@ -19,7 +19,10 @@
 //!   machine class: `--oracle-from DIR` takes it from an earlier bench's
 //!   `oracle-<stack>.json` instead of measuring it again (about 20 min per
 //!   stack), when that file was measured for the same manifests on a
-//!   machine of the same class ([`reusable`]).
+//!   machine of the same class ([`reusable`]);
+//! - `oracle-here`, with `--oracle-from`: the reused oracle's best config
+//!   measured again on this machine, the check that the oracle stands for
+//!   it ([`stands_here`]): VMs of one class differ.
 
 use std::path::Path;
 use std::process::Stdio;
@@ -154,10 +157,111 @@ pub async fn run_stack(
     } else {
         None
     };
-    if let Some(best) = oracle.as_ref().and_then(|o| o.best.clone()) {
-        rows.push(best);
+    let mut oracle = oracle;
+    if let Some(o) = oracle.as_mut()
+        && let Some(best) = o.best.clone()
+    {
+        rows.push(best.clone());
+        if o.reused_from.is_some() {
+            println!(
+                "==> {name}: the oracle's best config, measured on this machine ({} s)",
+                p.window
+            );
+            let here = best_here(cur, a, name, &stack, &spec, &defs, &best, p.window).await?;
+            let check = match stands_here(&defs, &best, &here) {
+                Ok(note) => Here { stands: true, note },
+                Err(note) => Here {
+                    stands: false,
+                    note,
+                },
+            };
+            println!("    {name}: {}", warned(&check));
+            o.here = Some(check);
+            rows.push(here);
+        }
     }
     Ok((rows, oracle))
+}
+
+/// A check's note, marked when the oracle does not stand (pure).
+pub fn warned(h: &Here) -> String {
+    if h.stands {
+        h.note.clone()
+    } else {
+        format!("WARNING: {}", h.note)
+    }
+}
+
+/// Share of its recorded objective the oracle's best config must give when
+/// measured again on this machine for the oracle to stand for it
+/// ([`stands_here`]).
+pub const HERE_KEEPS: f64 = 0.9;
+
+/// Whether an oracle taken from an earlier bench is a yardstick of this
+/// machine (pure): its best config, `here` measured again in this run
+/// (row `oracle-here`), held ≥ [`ORACLE_HOLDS`] and gave ≥ [`HERE_KEEPS`]
+/// of the objective it was recorded with (`recorded`). Two VMs of one
+/// machine class (model name and CPU count) differed 1.7× on
+/// real-perception (sessions 50 and 51): the class check alone let a
+/// faster VM's oracle stand. `Ok` says how it compared, `Err` why the
+/// ratios against it say little here.
+pub fn stands_here(
+    defs: &[MetricDef],
+    recorded: &MethodResult,
+    here: &MethodResult,
+) -> Result<String, String> {
+    let (was, is) = (objective(defs, recorded), objective(defs, here));
+    let ratio = if was > 0.0 { is / was } else { 1.0 };
+    let said = format!(
+        "its best config gave {:.1} %, objective {is:.3} here against {:.1} %, {was:.3} where it was measured ({ratio:.2}x)",
+        here.satisfaction * 100.0,
+        recorded.satisfaction * 100.0,
+    );
+    if here.satisfaction < ORACLE_HOLDS {
+        return Err(format!(
+            "{said}: it misses the core targets on this machine, so the oracle is no yardstick here; measure the oracle here (--real-methods oracle, without --oracle-from)"
+        ));
+    }
+    if ratio < HERE_KEEPS {
+        return Err(format!(
+            "{said}: this machine gives less than the one it was measured on, so X ORACLE understates every row here, and X HERE (against that config measured beside them, no search of this machine) may overstate them; measure the oracle here (--real-methods oracle, without --oracle-from)"
+        ));
+    }
+    Ok(said)
+}
+
+/// The oracle's best config measured again on a fresh robot of this run,
+/// from a drained state as the oracle measured it: row `oracle-here`.
+#[allow(clippy::too_many_arguments)]
+async fn best_here(
+    cur: &mut Current,
+    a: &BenchArgs,
+    name: &str,
+    stack: &RobotStack,
+    spec: &PerformanceSpec,
+    defs: &[MetricDef],
+    best: &MethodResult,
+    window: u64,
+) -> anyhow::Result<MethodResult> {
+    let config: ResourceConfig = serde_json::from_value(best.config.clone())
+        .map_err(|e| anyhow::anyhow!("{name}: the oracle's best config: {e}"))?;
+    let robot = start(cur, &a.out, name, "oracle-here", stack, defs).await?;
+    let out = async {
+        let r = robot.robot.as_ref();
+        let space = super::live_space(r, stack, spec).await?;
+        let rep = measure_from_drained(r, &space, defs, &config, window).await?;
+        anyhow::Ok(result(
+            name,
+            "oracle-here",
+            defs,
+            &rep,
+            best.config.clone(),
+            None,
+        ))
+    }
+    .await;
+    cur.close().await?;
+    out
 }
 
 /// The run whose scalarised objective is the median of `runs` (pure); for
@@ -301,6 +405,19 @@ pub struct Oracle {
     /// The best config that held ≥ 99.5 % over a full window and then over
     /// another, as measured in the second.
     pub best: Option<MethodResult>,
+    /// A reused oracle only: whether it stands for the machine that reused
+    /// it, by its best config measured again there ([`stands_here`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub here: Option<Here>,
+}
+
+/// The check that a reused oracle stands for this machine ([`stands_here`]).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(rename_all = "camelCase")]
+pub struct Here {
+    pub stands: bool,
+    /// How its best config compared, and why it does not stand if not.
+    pub note: String,
 }
 
 /// The machine a measurement ran on; an oracle stands for another run on
@@ -400,6 +517,8 @@ pub fn load_oracles(
             println!("    {}: {n}", path.display());
         }
         o.reused_from = Some(path.display().to_string());
+        // An earlier bench's check of the file is of its machine, not this one.
+        o.here = None;
         out.insert(name.clone(), o);
     }
     Ok(out)
@@ -584,6 +703,7 @@ async fn oracle(
             configs,
             verified,
             best,
+            here: None,
         })
     }
     .await;
@@ -655,31 +775,38 @@ pub fn write_oracle(out: &Path, o: &Oracle) -> anyhow::Result<()> {
 
 /// The per-stack summary against the oracle (pure): each row's
 /// satisfaction and scalarised objective, and its objective as a share of
-/// the oracle best's.
+/// the oracle best's (`X ORACLE`) and, when the oracle came from an earlier
+/// bench, of that best config measured again in this run (`X HERE`).
 pub fn summary(defs_of: &dyn Fn(&str) -> Vec<MetricDef>, rows: &[MethodResult]) -> String {
     let mut out = Vec::new();
     for r in rows {
         let defs = defs_of(&r.stack);
         let o = objective(&defs, r);
-        let oracle = rows
-            .iter()
-            .find(|b| b.stack == r.stack && b.method == "oracle")
-            .map(|b| objective(&defs, b));
+        let share = |method: &str| {
+            rows.iter()
+                .find(|b| b.stack == r.stack && b.method == method)
+                .map(|b| objective(&defs, b))
+                .filter(|&b| b > 0.0)
+                .map_or("-".into(), |b| format!("{:.2}", o / b))
+        };
         out.push(vec![
             r.stack.clone(),
             r.method.clone(),
             format!("{:.1}%", r.satisfaction * 100.0),
             format!("{o:.3}"),
-            oracle.map_or("-".into(), |b| {
-                if b > 0.0 {
-                    format!("{:.2}", o / b)
-                } else {
-                    "-".into()
-                }
-            }),
+            share("oracle"),
+            share("oracle-here"),
         ]);
     }
-    let h = ["STACK", "METHOD", "SATISFACTION", "OBJECTIVE", "X ORACLE"].map(String::from);
+    let h = [
+        "STACK",
+        "METHOD",
+        "SATISFACTION",
+        "OBJECTIVE",
+        "X ORACLE",
+        "X HERE",
+    ]
+    .map(String::from);
     configbot_controller::table::render(&h, &out)
 }
 
@@ -775,6 +902,39 @@ mod tests {
             "{t}"
         );
         assert!(lines[2].contains("1.00"), "{t}");
+        // Without an oracle-here row, X HERE is empty.
+        assert!(lines[1].trim_end().ends_with('-'), "{t}");
+    }
+
+    #[test]
+    fn the_summary_compares_each_row_with_the_oracle_measured_here_too() {
+        let rows = [
+            row("s", "configbot", 1.0, 3.0),
+            row("s", "oracle", 1.0, 4.0),
+            row("s", "oracle-here", 1.0, 2.0),
+        ];
+        let t = summary(&|_| defs(), &rows);
+        let cells: Vec<&str> = t.lines().nth(1).unwrap().split_whitespace().collect();
+        assert_eq!(cells[cells.len() - 2..], ["0.75", "1.50"], "{t}");
+    }
+
+    #[test]
+    fn a_reused_oracle_stands_when_its_best_config_gives_here_what_it_gave_there() {
+        let was = row("s", "oracle", 1.0, 4.0);
+        let ok = stands_here(&defs(), &was, &row("s", "oracle-here", 1.0, 3.8)).unwrap();
+        assert!(ok.contains("0.95x"), "{ok}");
+        // A slower machine: the same config gives less.
+        let e = stands_here(&defs(), &was, &row("s", "oracle-here", 1.0, 2.0)).unwrap_err();
+        assert!(
+            e.contains("0.50x") && e.contains("measure the oracle here"),
+            "{e}"
+        );
+        // Misses the core targets here: no yardstick whatever it gives.
+        let e = stands_here(&defs(), &was, &row("s", "oracle-here", 0.9, 4.0)).unwrap_err();
+        assert!(e.contains("misses the core targets"), "{e}");
+        // Just at the margins: stands.
+        let edge = row("s", "oracle-here", ORACLE_HOLDS, 4.0 * HERE_KEEPS);
+        assert!(stands_here(&defs(), &was, &edge).is_ok());
     }
 
     #[test]
@@ -830,6 +990,7 @@ mod tests {
             configs: Vec::new(),
             verified: Vec::new(),
             best: Some(row(stack, "oracle", 1.0, 4.0)),
+            here: None,
         }
     }
 
