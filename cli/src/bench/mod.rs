@@ -417,7 +417,7 @@ async fn bench(a: &BenchArgs, cur: &mut Current) -> anyhow::Result<ExitCode> {
         println!("\n{}", real::summary(&defs_of, &results));
         for o in &oracles {
             if let Some(h) = o.here.as_ref().filter(|h| !h.stands) {
-                println!("{}: {}", o.stack, real::warned(h));
+                println!("{}: {}", o.stack, h.said());
             }
         }
     }
