@@ -200,6 +200,9 @@ vocabulary! {
         /// A trial is near a constraint's boundary, or a verification's
         /// margin is short of the bar: it is measured longer.
         NearBoundary,
+        /// A trial among the best so far counted few messages on an
+        /// objective: it is measured longer.
+        FewMessages,
         /// A trial meets every target with every objective capped.
         ObjectivesCapped,
         /// A trial capped every objective but missed a core target: the

@@ -12,7 +12,7 @@ use configbot_optimizer::{Optimizer, Proposal, SafetyFloor, Settings};
 use super::knobs::{self, KnobSpace};
 use super::library;
 use super::machine::{Candidate, Env, Output, Run, SATISFIED, State, TrialRecord, normal, warning};
-use super::measure::{self, MetricDef};
+use super::measure::{self, Evaluation, MetricDef};
 use super::outcome::{self, observation, problem, remediate, unsat_reason};
 use super::settle;
 
@@ -274,10 +274,7 @@ pub(crate) fn record_trial(
     censored: bool,
     out: &mut Vec<Output>,
 ) {
-    let mut eval = measure::evaluate(defs, report, env.spec.tuning.scalarization);
-    if run.bursty {
-        measure::judge_by_windows(defs, report, &mut eval);
-    }
+    let eval = trial_eval(run, env, defs, report);
     let rec = TrialRecord {
         config,
         x,
@@ -312,6 +309,43 @@ pub(crate) fn record_trial(
         outcome::weigh_on_bursts(run, defs, &what, &rec.eval, "", out);
     }
     run.trials.push(rec);
+}
+
+/// A trial's evaluation (pure): judged by its windows once the run's core
+/// path is known to miss in bursts.
+fn trial_eval(run: &Run, env: &Env<'_>, defs: &[MetricDef], report: &MeasureReport) -> Evaluation {
+    let mut eval = measure::evaluate(defs, report, env.spec.tuning.scalarization);
+    if run.bursty {
+        measure::judge_by_windows(defs, report, &mut eval);
+    }
+    eval
+}
+
+/// The objectives that rest on few messages ([`measure::few_messages`]) in
+/// a measurement that would rank among the best trials so far (pure): one
+/// that is feasible, above zero and within [`NEAR_BEST`] of the best
+/// feasible unrejected trial. Empty otherwise: a trial well below the best
+/// is not worth a longer measurement, however thin its count.
+pub(crate) fn thin_contender(
+    run: &Run,
+    env: &Env<'_>,
+    defs: &[MetricDef],
+    report: &MeasureReport,
+) -> Vec<(String, f64)> {
+    let eval = trial_eval(run, env, defs, report);
+    let objective = eval.objective.unwrap_or(0.0);
+    let top = run
+        .trials
+        .iter()
+        .enumerate()
+        .filter(|(i, t)| t.feasible() && !run.rejected.contains(i))
+        .map(|(_, t)| t.eval.objective.unwrap_or(0.0))
+        .fold(f64::NEG_INFINITY, f64::max);
+    if eval.feasible && objective > 0.0 && objective >= top - NEAR_BEST {
+        measure::few_messages(defs, report)
+    } else {
+        Vec::new()
+    }
 }
 
 /// Whether the run's restrictive-corner trial mostly held (at least

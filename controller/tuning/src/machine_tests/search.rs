@@ -1165,6 +1165,47 @@ fn a_bursty_run_judges_a_trial_by_its_windows() {
     assert_eq!(missed.trials[0].eval.constraints, vec![34.0]);
 }
 
+/// A trial among the best so far whose objective rests on few messages
+/// (`measure::FEW_MESSAGES`) is measured on to the extended length before
+/// it is recorded: detection at 0.5 Hz counts 2.5 messages in 5 s, where
+/// one message more or less moves its objective by two fifths. One with
+/// enough messages is recorded at once, and so is a thin trial well below
+/// an earlier best: a longer measurement would not make it the best.
+#[test]
+fn a_contender_on_few_messages_is_measured_longer() {
+    let (st, sp) = (stack(), spec(0.0, 20));
+    let env = env(&st, &sp);
+    let (run, out) = baseline_then_first_trial(&env, &BAD, report(&OK, 0.5));
+    assert_eq!(reasons(&out), vec!["FewMessages"]);
+    assert!(
+        event_text(&out[0]).contains("objective 0.050 is among the best so far but rests on few messages (det 2.5 in 5 s); measuring up to 10 s"),
+        "{out:?}"
+    );
+    assert!(run.trials.is_empty());
+    let State::TrialProfile {
+        partial: Some(p), ..
+    } = &run.state
+    else {
+        panic!("{:?}", run.state)
+    };
+    assert_eq!(p.duration_ms, 5000);
+    let (longer, out) = step(run, report(&OK, 0.5), &env);
+    assert_eq!(reasons(&out), vec!["Trial"]);
+    assert_eq!(longer.trials.len(), 1);
+    assert!(longer.trials[0].feasible());
+    // Ten messages in 5 s: recorded at once ...
+    let (run, out) = baseline_then_first_trial(&env, &BAD, report(&OK, 2.0));
+    assert_eq!(reasons(&out), vec!["Trial"]);
+    assert_eq!(run.trials[0].eval.objective, Some(0.2));
+    // ... and the next trial, thin but a quarter of that best, too.
+    let (run, _) = step(run, Input::Applied, &env);
+    assert_eq!(name(&run.state), "TrialProfile");
+    let (run, out) = step(run, report(&OK, 0.5), &env);
+    assert_eq!(reasons(&out).first(), Some(&"Trial"), "{out:?}");
+    assert_eq!(run.trials.len(), 2);
+    assert_eq!(run.trials[1].eval.objective, Some(0.05));
+}
+
 #[test]
 fn with_every_knob_pinned_the_pinned_config_is_measured_before_a_verdict() {
     let st = stack();
@@ -1784,9 +1825,17 @@ fn a_held_config_is_lifted_where_only_its_worst_objective_gains() {
             config: lifting.knobs.to_config(&[2.0, 1.5]),
         }
     );
-    // Held with more objective: monitored, and no second lift (two
-    // objectives, one lift).
-    let (up, out) = verify_det(lifting.clone(), &env, &OK, 9.0);
+    // Held with more objective: a lift is measured on to the minute
+    // whatever its margin, then monitored, and no second lift (two
+    // objectives, one lift) ...
+    let (on, out) = verify_det(lifting.clone(), &env, &OK, 9.0);
+    assert_eq!(reasons(&out), vec!["NearBoundary"]);
+    assert!(
+        event_text(&out[0]).contains("a lift moves a config that held towards the boundary and no trial measured it, so it must hold the minute without a miss; measuring on to 60 s, stopping at the first miss"),
+        "{out:?}"
+    );
+    let (up, out, secs) = measure_on(on.clone(), &env, 9.0, None);
+    assert_eq!(secs, 60, "the minute, in the chunks the run asks for");
     assert_eq!(reasons(&out), vec!["Satisfied", "<save>"]);
     assert!(
         matches!(&up.state, State::Monitor { satisfied: true, config } if *config == up.knobs.to_config(&[2.0, 1.5]))
@@ -1796,6 +1845,25 @@ fn a_held_config_is_lifted_where_only_its_worst_objective_gains() {
     assert_eq!(
         (status.best_trial, status.best_trial_backoff),
         (Some(0), None)
+    );
+    // ... and one window missed on the way: the lift missed, tried
+    // again halved.
+    let (halved, out, secs) = measure_on(on, &env, 9.0, Some(32));
+    assert_eq!(secs, 35);
+    assert_eq!(
+        reasons(&out),
+        vec!["VerificationFailed", "LiftingObjectives"]
+    );
+    assert!(
+        matches!(
+            &halved.state,
+            State::VerifyApply {
+                candidate: Candidate::Lift { halved: 1, .. },
+                ..
+            }
+        ),
+        "{:?}",
+        halved.state
     );
     // Missed: tried again with the factor's square root (3.75 → 1.94),
     // then its 4th, 8th and 16th roots (1.39, 1.18, 1.09), each from trial
@@ -1892,9 +1960,42 @@ fn a_held_config_is_lifted_where_only_its_worst_objective_gains() {
         );
         assert!(short.lift_ended);
     }
-    let (up, out) = verify_det(lifting, &env, &OK, 6.1);
+    let (on, out) = verify_det(lifting, &env, &OK, 6.1);
+    assert_eq!(reasons(&out), vec!["NearBoundary"]);
+    let (up, out, _) = measure_on(on, &env, 6.1, None);
     assert_eq!(reasons(&out), vec!["Satisfied", "<save>"]);
     assert!(matches!(up.state, State::Monitor { .. }), "{:?}", up.state);
+}
+
+/// Measures a verification on in the chunks its effect asks for, every
+/// window at 40 Hz but the one at second `miss` (30 Hz), detection at
+/// `det`, until it leaves `Verify`: the run then, the last step's outputs
+/// and the seconds measured in all.
+fn measure_on(mut run: Run, env: &Env<'_>, det: f64, miss: Option<u64>) -> (Run, Vec<Output>, u64) {
+    let State::Verify {
+        so_far: Some(p), ..
+    } = &run.state
+    else {
+        panic!("{:?}", run.state)
+    };
+    let mut secs = p.duration_ms / 1000;
+    for _ in 0..20 {
+        let Effect::Measure(req) = effect(&run, env) else {
+            panic!("{:?}", run.state)
+        };
+        let n = req.duration_ms / 1000;
+        let cmd: Vec<f64> = (secs..secs + n)
+            .map(|t| if Some(t) == miss { 30.0 } else { 40.0 })
+            .collect();
+        secs += n;
+        let (next, out) = step(run, report(&cmd, det), env);
+        if name(&next.state) != "Verify" {
+            return (next, out, secs);
+        }
+        assert!(out.is_empty(), "{out:?}");
+        run = next;
+    }
+    panic!("a verification that never ends")
 }
 
 /// In a bursty run a verification measures on to its record; a lift whose
