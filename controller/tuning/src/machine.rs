@@ -1185,8 +1185,7 @@ pub fn step(mut run: Run, input: Input, env: &Env<'_>) -> (Run, Vec<Output>) {
             // spread says little of the bursts of the apps it raised.
             // Measured on real-perception (session 53, seed 3): a lift that
             // cleared the margin in its 10 s verification held 91.7 % of
-            // the independent minute (5 windows missed), where the config
-            // it raised held 100 % in two earlier runs.
+            // the independent minute (5 windows missed).
             let lift = matches!(candidate, Candidate::Lift { .. });
             // Measured on so far, every window on target.
             let measuring_on = so_far.is_some() && short && eval.satisfaction >= 1.0;
