@@ -1067,40 +1067,37 @@ pub fn step(mut run: Run, input: Input, env: &Env<'_>) -> (Run, Vec<Output>) {
             let long_enough = report.duration_ms >= env.trial_ms();
             let room = long_enough && report.duration_ms < env.extended_trial_ms();
             let boundary = room && measure::near_boundary(&defs, &report);
-            let thin = if room && !boundary {
-                thin_contender(&run, env, &defs, &report)
-            } else {
-                Vec::new()
-            };
-            let extend = boundary || !thin.is_empty();
+            let thin = (room && !boundary)
+                .then(|| thin_contender(&run, env, &defs, &report))
+                .flatten();
+            let extend = boundary || thin.is_some();
             if extend
                 && partial
                     .as_ref()
                     .is_none_or(|p| p.duration_ms < env.trial_ms())
             {
                 let upto = env.extended_trial_ms() / 1000;
-                out.push(if boundary {
-                    normal(
+                out.push(match &thin {
+                    None => normal(
                         Reason::NearBoundary,
                         format!(
                             "trial {}: a core constraint is near its target; measuring up to {upto} s to tell",
                             run.trials.len(),
                         ),
-                    )
-                } else {
-                    let eval = measure::evaluate(&defs, &report, env.spec.tuning.scalarization);
-                    normal(
+                    ),
+                    Some(thin) => normal(
                         Reason::FewMessages,
                         format!(
                             "trial {}: objective {:.3} is among the best so far but rests on few messages ({}); measuring up to {upto} s to tell",
                             run.trials.len(),
-                            eval.objective.unwrap_or(0.0),
-                            thin.iter()
+                            thin.objective,
+                            thin.counts
+                                .iter()
                                 .map(|(name, n)| format!("{name} {n:.1} in {} s", report.duration_ms / 1000))
                                 .collect::<Vec<_>>()
                                 .join(", "),
                         ),
-                    )
+                    ),
                 });
             }
             let complete = long_enough && !extend;

@@ -321,31 +321,38 @@ fn trial_eval(run: &Run, env: &Env<'_>, defs: &[MetricDef], report: &MeasureRepo
     eval
 }
 
-/// The objectives that rest on few messages ([`measure::few_messages`]) in
-/// a measurement that would rank among the best trials so far (pure): one
-/// that is feasible, above zero and within [`NEAR_BEST`] of the best
-/// feasible unrejected trial. Empty otherwise: a trial well below the best
-/// is not worth a longer measurement, however thin its count.
+/// A measurement that would rank among the best trials so far while some
+/// objective rests on few messages (see [`thin_contender`]).
+#[derive(Debug, Clone, PartialEq)]
+pub(crate) struct Thin {
+    /// The measurement's scalarised objective.
+    pub objective: f64,
+    /// Each objective that counted few messages, with its count
+    /// ([`measure::few_messages`]).
+    pub counts: Vec<(String, f64)>,
+}
+
+/// Whether a measurement would rank among the best trials so far (feasible,
+/// above zero and within [`NEAR_BEST`] of the best feasible unrejected
+/// trial) on objectives that rest on few messages (pure). `None` otherwise:
+/// a trial well below the best is not worth a longer measurement, however
+/// thin its count.
 pub(crate) fn thin_contender(
     run: &Run,
     env: &Env<'_>,
     defs: &[MetricDef],
     report: &MeasureReport,
-) -> Vec<(String, f64)> {
+) -> Option<Thin> {
     let eval = trial_eval(run, env, defs, report);
     let objective = eval.objective.unwrap_or(0.0);
-    let top = run
-        .trials
-        .iter()
-        .enumerate()
-        .filter(|(i, t)| t.feasible() && !run.rejected.contains(i))
-        .map(|(_, t)| t.eval.objective.unwrap_or(0.0))
-        .fold(f64::NEG_INFINITY, f64::max);
-    if eval.feasible && objective > 0.0 && objective >= top - NEAR_BEST {
+    let contender =
+        eval.feasible && objective > 0.0 && objective >= top_objective(run, |_| true) - NEAR_BEST;
+    let counts = if contender {
         measure::few_messages(defs, report)
     } else {
         Vec::new()
-    }
+    };
+    (!counts.is_empty()).then_some(Thin { objective, counts })
 }
 
 /// Whether the run's restrictive-corner trial mostly held (at least
@@ -685,10 +692,7 @@ fn best_of(run: &Run, eligible: impl Fn(&TrialRecord) -> bool) -> Option<usize> 
         .filter(|(i, t)| t.feasible() && !run.rejected.contains(i) && eligible(t))
         .collect();
     let objective = |t: &TrialRecord| t.eval.objective.unwrap_or(0.0);
-    let top = candidates
-        .iter()
-        .map(|(_, t)| objective(t))
-        .fold(f64::NEG_INFINITY, f64::max);
+    let top = top_objective(run, &eligible);
     candidates
         .into_iter()
         .filter(|(_, t)| objective(t) >= top - NEAR_BEST)
@@ -699,6 +703,17 @@ fn best_of(run: &Run, eligible: impl Fn(&TrialRecord) -> bool) -> Option<usize> 
                 .then(objective(b).total_cmp(&objective(a)))
         })
         .map(|(i, _)| i)
+}
+
+/// The best objective among the unrejected feasible trials that pass
+/// `eligible` (pure); minus infinity when there are none.
+fn top_objective(run: &Run, eligible: impl Fn(&TrialRecord) -> bool) -> f64 {
+    run.trials
+        .iter()
+        .enumerate()
+        .filter(|(i, t)| t.feasible() && !run.rejected.contains(i) && eligible(t))
+        .map(|(_, t)| t.eval.objective.unwrap_or(0.0))
+        .fold(f64::NEG_INFINITY, f64::max)
 }
 
 /// Pick the best unrejected feasible trial to verify, or end Unsat with the safest config.

@@ -874,6 +874,17 @@ fn a_tipped_config_with_nothing_else_to_try_relearns_at_once() {
 
 /// The baseline of `cmd` values `base` measured; the run then applies its
 /// first trial (the restrictive corner), and that trial measures `first`.
+/// How much of a trial in `TrialProfile` is measured so far, in ms.
+fn partial_ms(run: &Run) -> u64 {
+    let State::TrialProfile {
+        partial: Some(p), ..
+    } = &run.state
+    else {
+        panic!("{:?}", run.state)
+    };
+    p.duration_ms
+}
+
 fn baseline_then_first_trial(env: &Env<'_>, base: &[f64], first: Input) -> (Run, Vec<Output>) {
     let (run, out) = step(
         with(State::Baseline {
@@ -1063,13 +1074,7 @@ fn a_trial_near_the_boundary_is_measured_longer_not_discarded() {
     let (run, out) = baseline_then_first_trial(&env, &BAD, report(&spread, 2.0));
     assert_eq!(reasons(&out), vec!["NearBoundary"]);
     assert!(run.trials.is_empty());
-    let State::TrialProfile {
-        partial: Some(p), ..
-    } = &run.state
-    else {
-        panic!("{:?}", run.state)
-    };
-    assert_eq!(p.duration_ms, 5000);
+    assert_eq!(partial_ms(&run), 5000);
     assert_eq!(
         effect(&run, &env),
         Effect::Measure(measure::with_usage(
@@ -1182,13 +1187,7 @@ fn a_contender_on_few_messages_is_measured_longer() {
         "{out:?}"
     );
     assert!(run.trials.is_empty());
-    let State::TrialProfile {
-        partial: Some(p), ..
-    } = &run.state
-    else {
-        panic!("{:?}", run.state)
-    };
-    assert_eq!(p.duration_ms, 5000);
+    assert_eq!(partial_ms(&run), 5000);
     let (longer, out) = step(run, report(&OK, 0.5), &env);
     assert_eq!(reasons(&out), vec!["Trial"]);
     assert_eq!(longer.trials.len(), 1);
