@@ -1067,7 +1067,13 @@ pub fn step(mut run: Run, input: Input, env: &Env<'_>) -> (Run, Vec<Output>) {
             let long_enough = report.duration_ms >= env.trial_ms();
             let room = long_enough && report.duration_ms < env.extended_trial_ms();
             let boundary = room && measure::near_boundary(&defs, &report);
-            let thin = (room && !boundary)
+            // A thin contender is measured on only where that at most
+            // doubles its trial: with 2 s trials the extended length is
+            // five trials, which a count short by a message or two is not
+            // worth (measured: an e2e run with 2 s trials spent its minute
+            // on six such extensions and tuned nothing).
+            let doubles = env.extended_trial_ms() <= 2 * env.trial_ms();
+            let thin = (room && !boundary && doubles)
                 .then(|| thin_contender(&run, env, &defs, &report))
                 .flatten();
             let extend = boundary || thin.is_some();

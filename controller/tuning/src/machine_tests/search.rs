@@ -1179,6 +1179,12 @@ fn a_bursty_run_judges_a_trial_by_its_windows() {
 #[test]
 fn a_contender_on_few_messages_is_measured_longer() {
     let (st, sp) = (stack(), spec(0.0, 20));
+    // With 2 s trials the extended length is five trials: a thin count is
+    // recorded as measured.
+    let mut short = spec(0.0, 20);
+    short.spec.tuning.trial_seconds = 2.0;
+    let (_, out) = baseline_then_first_trial(&env(&st, &short), &BAD, report(&OK[..2], 0.5));
+    assert_eq!(reasons(&out).first(), Some(&"Trial"), "{out:?}");
     let env = env(&st, &sp);
     let (run, out) = baseline_then_first_trial(&env, &BAD, report(&OK, 0.5));
     assert_eq!(reasons(&out), vec!["FewMessages"]);
