@@ -77,6 +77,14 @@ fn best_failing_verification_tries_the_next_best_then_unsat() {
     let (run, out) = step(run, report(&[20.0; 10], 5.0), &env);
     assert_eq!(reasons(&out), vec!["VerificationFailed", "Unsat"]);
     assert_eq!(name(&run.state), "UnsatApply");
+    // One core constraint, met in both trials, missed in both verifications:
+    // the reason says so, not that constraints were never met together.
+    let why = event_text(&out[1]);
+    assert!(
+        why.contains("were met in trial 0, trial 1, but each config verified over a longer window missed (trial 1, trial 0)"),
+        "{why}"
+    );
+    assert!(!why.contains("never together"), "{why}");
 }
 
 /// A run whose knobs are /detector's CPU (non-core, 0.1..2) and /planner's
