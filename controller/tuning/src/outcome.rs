@@ -184,10 +184,11 @@ fn met_but_unverified(run: &Run, defs: &[MetricDef], all: &[(String, &TrialRecor
         .collect();
     if !met.is_empty() && !run.rejected.is_empty() {
         let missed: Vec<String> = run.rejected.iter().map(|i| format!("trial {i}")).collect();
+        let missed: Vec<&str> = missed.iter().map(String::as_str).collect();
         format!(
             "the core targets ({names}) were met in {}, but each config verified over a longer window missed ({})",
             list_some(&met),
-            missed.join(", ")
+            list_some(&missed)
         )
     } else if run.bursty {
         format!(
@@ -1438,4 +1439,18 @@ pub(crate) fn restore(
     let config = run.knobs.weigh(h.config);
     adopt(run, env, defs, h.candidate, &config, h.eval, out);
     drain_first(run, env, State::RestoreApply { config })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::list_some;
+
+    #[test]
+    fn list_some_names_four_and_counts_the_rest() {
+        assert_eq!(list_some(&[]), "");
+        assert_eq!(list_some(&["trial 1", "trial 0"]), "trial 1, trial 0");
+        let six = ["a", "b", "c", "d", "e", "f"];
+        assert_eq!(list_some(&six[..4]), "a, b, c, d");
+        assert_eq!(list_some(&six), "a, b, c, d and 2 more");
+    }
 }
