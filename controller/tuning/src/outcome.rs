@@ -184,7 +184,6 @@ fn met_but_unverified(run: &Run, defs: &[MetricDef], all: &[(String, &TrialRecor
         .collect();
     if !met.is_empty() && !run.rejected.is_empty() {
         let missed: Vec<String> = run.rejected.iter().map(|i| format!("trial {i}")).collect();
-        let missed: Vec<&str> = missed.iter().map(String::as_str).collect();
         format!(
             "the core targets ({names}) were met in {}, but each config verified over a longer window missed ({})",
             list_some(&met),
@@ -200,9 +199,10 @@ fn met_but_unverified(run: &Run, defs: &[MetricDef], all: &[(String, &TrialRecor
 }
 
 /// The first few names of `names` and how many more (for event text).
-fn list_some(names: &[&str]) -> String {
+fn list_some<S: AsRef<str>>(names: &[S]) -> String {
     const SHOWN: usize = 4;
-    let head = names[..names.len().min(SHOWN)].join(", ");
+    let head: Vec<&str> = names.iter().take(SHOWN).map(AsRef::as_ref).collect();
+    let head = head.join(", ");
     match names.len().saturating_sub(SHOWN) {
         0 => head,
         more => format!("{head} and {more} more"),
@@ -1447,7 +1447,7 @@ mod tests {
 
     #[test]
     fn list_some_names_four_and_counts_the_rest() {
-        assert_eq!(list_some(&[]), "");
+        assert_eq!(list_some::<&str>(&[]), "");
         assert_eq!(list_some(&["trial 1", "trial 0"]), "trial 1, trial 0");
         let six = ["a", "b", "c", "d", "e", "f"];
         assert_eq!(list_some(&six[..4]), "a, b, c, d");
