@@ -224,8 +224,14 @@ vocabulary! {
         /// A config failed its verification.
         VerificationFailed,
         /// A verification missed in bursts: the core nodes are weighted
-        /// from now on and the candidate is verified again.
+        /// from now on and the candidate is verified again; or a weighted
+        /// config set aside (see `CoreUnweighted`) is verified again.
         CoreWeighted,
+        /// A weighted verification held with less objective than a back-off
+        /// of its trial promises: the weight is dropped and the back-off is
+        /// verified unweighted; the weighted config is verified again when
+        /// nothing better holds.
+        CoreUnweighted,
         /// A rejected best trial is verified again with its knobs backed off.
         BackingOff,
         /// A held config tipped, or a measured trial promises more than a

@@ -231,7 +231,8 @@ fn is_zero(n: &u32) -> bool {
 
 /// A config that held its verification and was then lifted
 /// ([`outcome::lift`]): what to go back to when the lift does not hold,
-/// or when the lifted config tips later.
+/// or when the lifted config tips later; or a weighted verification set
+/// aside for an unweighted back-off (`Run::weighted_fallback`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Held {
     pub candidate: Candidate,
@@ -566,6 +567,17 @@ pub struct Run {
     /// ([`super::balance`]), in order.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub balanced: Vec<Vec<f64>>,
+    /// A trial's weighted verification whose first piece held, set aside
+    /// while an unweighted back-off of the trial is verified (see
+    /// [`outcome::unweigh`]): verified again when nothing that holds gives
+    /// more objective.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub weighted_fallback: Option<Held>,
+    /// The core nodes' weight cost more objective than a back-off
+    /// promised and was dropped ([`outcome::unweigh`]): this run does not
+    /// weight them again on bursts.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub weight_declined: bool,
 }
 
 impl Run {
@@ -619,6 +631,8 @@ impl Run {
             held: Vec::new(),
             lift_ended: false,
             balanced: Vec::new(),
+            weighted_fallback: None,
+            weight_declined: false,
         }
     }
 
@@ -1205,6 +1219,23 @@ pub fn step(mut run: Run, input: Input, env: &Env<'_>) -> (Run, Vec<Output>) {
                 ));
                 run.lift_ended = true;
                 outcome::restore(&mut run, env, &defs, &mut out)
+            }
+            // A trial verified again weighted whose first piece shows the
+            // weight costing more objective than a back-off promises: the
+            // back-off is verified unweighted before the weight's record.
+            else if so_far.is_none()
+                && let Some(next) = outcome::unweigh(
+                    &mut run,
+                    env,
+                    &defs,
+                    &candidate,
+                    &config,
+                    &eval,
+                    report.duration_ms / 1000,
+                    &mut out,
+                )
+            {
+                next
             }
             // A first measurement whose windows all held goes on to the
             // minute (the record) when its margin is short of the bar, or

@@ -262,6 +262,23 @@ fn back_off(
         run.deferred_backoff = Some(backoff);
         return next;
     }
+    verify_backoff(run, env, defs, backoff, out)
+}
+
+/// The verification of `backoff`, a back-off of a rejected trial
+/// ([`back_off`]): its point shaped by the models or uniform
+/// ([`backoff_point`]), drained first; or, when a measured trial beyond
+/// the failed verifications' edges promises as much ([`backoff_promise`]),
+/// that trial, the back-off set aside; or, when the weighted config set
+/// aside ([`unweigh`]) already gave as much, that config verified again
+/// (`search::finish`).
+fn verify_backoff(
+    run: &mut Run,
+    env: &Env<'_>,
+    defs: &[MetricDef],
+    backoff: Backoff,
+    out: &mut Vec<Output>,
+) -> State {
     let Backoff {
         index: pick,
         fraction: next,
@@ -284,6 +301,13 @@ fn back_off(
         objective(&run.trials[pick]),
         next,
     );
+    if run
+        .weighted_fallback
+        .as_ref()
+        .is_some_and(|h| h.eval.objective.unwrap_or(0.0) >= promise)
+    {
+        return finish(run, env, defs, out);
+    }
     if let Some(alt) = super::search::best_clear_trial(run)
         && objective(&run.trials[alt]) >= promise
     {
@@ -843,7 +867,7 @@ pub fn weigh_on_bursts(
         return false;
     }
     run.bursty = true;
-    if run.knobs.weighted || run.knobs.core.is_empty() {
+    if run.knobs.weighted || run.knobs.core.is_empty() || run.weight_declined {
         return false;
     }
     run.knobs.weighted = true;
@@ -885,6 +909,119 @@ fn verify_weighted(
     run.edges.clear();
     let config = run.knobs.weigh(config);
     drain_first(run, env, State::VerifyApply { candidate, config })
+}
+
+/// When `candidate`, a trial verified again with the core nodes weighted
+/// ([`verify_weighted`]), measured `eval` with every window on target and
+/// its objective below what backing the trial off unweighted promises
+/// (the first back-off step's [`backoff_promise`], by more than
+/// [`super::search::NEAR_BEST`]): the trial's objective as measured
+/// unweighted, its objective now and that promise (pure). `None` when
+/// the run has rejected a trial, retries a tip or already set a weighted
+/// config aside. A weight and a back-off both buy the core nodes margin;
+/// the weight costs the non-core apps little when the core nodes' demand
+/// is fixed, but all the CPU they would take when it grows with what they
+/// get. Measured on Basic-NAV (sessions 46, 48 and 56, the bench's row):
+/// its capped trial (objective 1.000) missed windows in bursts, held
+/// weighted at 0.48 (detection 1.5 Hz, 0.83× the default), and the run
+/// kept that, where the same trial unweighted measured 4.4 Hz in
+/// `./x demo`; its navigation loop runs as fast as its CPU allows.
+pub fn weight_cost(
+    run: &Run,
+    candidate: &Candidate,
+    config: &ResourceConfig,
+    eval: &measure::Evaluation,
+) -> Option<(f64, f64, f64)> {
+    let Candidate::Trial { index } = *candidate else {
+        return None;
+    };
+    let trial = run.trials.get(index)?;
+    let reweighted =
+        run.knobs.weighted && !config.cpu_weight.is_empty() && trial.config.cpu_weight.is_empty();
+    if !reweighted
+        || eval.satisfaction < 1.0
+        || !run.rejected.is_empty()
+        || run.tipped.is_some()
+        || run.tip_retried
+        || run.weighted_fallback.is_some()
+    {
+        return None;
+    }
+    let objective = |o: Option<f64>| o.unwrap_or(0.0);
+    let (was, now) = (objective(trial.eval.objective), objective(eval.objective));
+    let corner = run.corner().filter(|c| c.feasible());
+    let promise = backoff_promise(
+        corner.map(|c| objective(c.eval.objective)),
+        was,
+        BACKOFF_STEP,
+    );
+    (promise > now + super::search::NEAR_BEST).then_some((was, now, promise))
+}
+
+/// The weight of [`weight_cost`] is dropped, once its first piece of
+/// measurement (`eval`, `seconds` long) shows the cost: the core nodes are
+/// not weighted for the rest of the run (`Run::weight_declined`), the
+/// weighted config is set aside (`Run::weighted_fallback`;
+/// `search::finish` verifies it again, weighted, when no back-off holds
+/// with more) and the trial's first back-off is verified unweighted.
+/// `None` when the weight does not cost that much. Its record is not
+/// measured first: the objective it would keep is what decides.
+#[allow(clippy::too_many_arguments)]
+pub fn unweigh(
+    run: &mut Run,
+    env: &Env<'_>,
+    defs: &[MetricDef],
+    candidate: &Candidate,
+    config: &ResourceConfig,
+    eval: &measure::Evaluation,
+    seconds: u64,
+    out: &mut Vec<Output>,
+) -> Option<State> {
+    let (was, now, promise) = weight_cost(run, candidate, config, eval)?;
+    let index = candidate.trial()?.0;
+    out.push(normal(
+        Reason::CoreUnweighted,
+        format!(
+            "trial {index} held every window of {seconds} s weighted at objective {now:.3}, where it measured {was:.3} unweighted: the core nodes' weight takes more from the non-core apps than backing the trial off to {:.0} % promises ({promise:.3}); the back-off is verified without the weight, and the weighted config again if nothing holds with more",
+            BACKOFF_STEP * 100.0
+        ),
+    ));
+    run.weighted_fallback = Some(Held {
+        candidate: candidate.clone(),
+        config: config.clone(),
+        eval: eval.clone(),
+    });
+    run.knobs.weighted = false;
+    run.weight_declined = true;
+    run.rejected.push(index);
+    let backoff = Backoff {
+        index,
+        fraction: BACKOFF_STEP,
+        step: 1,
+        shaped: false,
+    };
+    Some(verify_backoff(run, env, defs, backoff, out))
+}
+
+/// The weighted config [`unweigh`] set aside, verified again with the
+/// core nodes weighted (`search::finish` calls this first): no unweighted
+/// back-off held with more objective. `None` without one.
+pub(crate) fn fall_back(run: &mut Run, env: &Env<'_>, out: &mut Vec<Output>) -> Option<State> {
+    let h = run.weighted_fallback.take()?;
+    out.push(normal(
+        Reason::CoreWeighted,
+        format!(
+            "no unweighted config held with more objective than {} weighted ({:.3}): verifying it again, the core nodes weighted",
+            h.candidate.text(),
+            h.eval.objective.unwrap_or(0.0)
+        ),
+    ));
+    run.knobs.weighted = true;
+    let verify = State::VerifyApply {
+        candidate: h.candidate,
+        config: h.config,
+    };
+    Some(drain_first(run, env, verify))
 }
 
 /// Why a verification failed, for its event: too few windows held (by the
@@ -1009,6 +1146,17 @@ pub fn verified(
                     .map_or("-".to_string(), |o| format!("{o:.3}"))
             ),
         ));
+        // An unweighted config that holds with less objective than the
+        // weighted one set aside gives way to it (`search::finish`).
+        let objective = eval.objective.unwrap_or(0.0);
+        if run
+            .weighted_fallback
+            .as_ref()
+            .is_some_and(|h| h.eval.objective.unwrap_or(0.0) > objective)
+        {
+            return finish(run, env, defs, out);
+        }
+        run.weighted_fallback = None;
         if let Some(next) = lift(run, env, defs, &candidate, &config, &eval, out) {
             return next;
         }

@@ -716,13 +716,19 @@ fn top_objective(run: &Run, eligible: impl Fn(&TrialRecord) -> bool) -> f64 {
         .fold(f64::NEG_INFINITY, f64::max)
 }
 
-/// Pick the best unrejected feasible trial to verify, or end Unsat with the safest config.
+/// Pick the best unrejected feasible trial to verify, or end Unsat with the
+/// safest config; first, the weighted config set aside while back-offs were
+/// verified unweighted, verified again, when there is one
+/// (`outcome::fall_back`).
 pub(crate) fn finish(
     run: &mut Run,
     env: &Env<'_>,
     defs: &[MetricDef],
     out: &mut Vec<Output>,
 ) -> State {
+    if let Some(back) = outcome::fall_back(run, env, out) {
+        return back;
+    }
     if let Some(next) = search_on(run, env, out) {
         return next;
     }

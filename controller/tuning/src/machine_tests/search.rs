@@ -523,6 +523,165 @@ fn a_verification_that_misses_in_bursts_weights_the_core_nodes_and_verifies_agai
     assert!(config.cpu_weight.is_empty(), "{config:?}");
 }
 
+/// Verify the run's current candidate to its end, every core window on
+/// target and the detector at `det`: apply, settle, then each piece the
+/// run asks for (a bursty run's record is measured on in pieces).
+fn verify_through(run: Run, env: &Env<'_>, det: f64) -> (Run, Vec<Output>) {
+    let (run, _) = step(run, Input::Applied, env);
+    let (mut run, _) = step(run, Input::Slept, env);
+    let mut all = Vec::new();
+    while name(&run.state) == "Verify" {
+        let Effect::Measure(req) = effect(&run, env) else {
+            panic!("{:?}", run.state)
+        };
+        let windows = usize::try_from(req.duration_ms / 1000).unwrap();
+        let (next, out) = step(run, report(&vec![40.0; windows], det), env);
+        all.extend(out);
+        run = next;
+    }
+    (run, all)
+}
+
+/// [`with_two_trials`] with a core node, its trial 1 (objective 0.9)
+/// verified: the verification missed two windows in bursts, so the run
+/// weights its core nodes and verifies trial 1 again, weighted.
+fn reverifying_weighted(env: &Env<'_>) -> Run {
+    let mut run = with_two_trials(env);
+    run.knobs.core = vec!["/planner".into()];
+    run.state = finish(&mut run, env, &env.defs(), &mut Vec::new());
+    let mut burst = [40.0; 10];
+    burst[3] = 30.0;
+    burst[7] = 30.0;
+    let (weighted, out) = verify(run, env, &burst);
+    assert_eq!(reasons(&out), vec!["CoreWeighted"]);
+    weighted
+}
+
+/// A trial verified again weighted whose first piece holds every window
+/// with much less objective than the trial measured unweighted (the core
+/// nodes' demand grows with the CPU they get, as Basic-NAV's navigation
+/// loop's does) is set aside before its record, the weight dropped, and
+/// the trial's first back-off is verified unweighted: kept when it holds
+/// with more objective than the weighted config, which is verified again,
+/// weighted, when the back-off gives less or the back-offs are spent. A
+/// weighted verification that keeps the trial's objective is measured to
+/// its record and monitored as before.
+#[test]
+fn a_weight_that_costs_more_objective_than_a_back_off_promises_is_dropped_for_the_back_off() {
+    let (st, sp) = (stack(), spec(1.0, 5));
+    let env = env(&st, &sp);
+    let weights = std::collections::BTreeMap::from([("/planner".to_string(), knobs::CORE_WEIGHT)]);
+
+    let (kept, out) = verify_through(reverifying_weighted(&env), &env, 9.0);
+    assert_eq!(reasons(&out), vec!["NearBoundary", "Satisfied", "<save>"]);
+    assert_eq!(name(&kept.state), "Monitor");
+    assert!(kept.knobs.weighted && kept.weighted_fallback.is_none());
+
+    // Weighted, the detector falls to 4.5 (objective 0.45); a back-off of
+    // trial 1 (0.9) to 80 % promises 0.72.
+    let (unweighted, out) = verify_through(reverifying_weighted(&env), &env, 4.5);
+    assert_eq!(reasons(&out), vec!["CoreUnweighted", "BackingOff"]);
+    assert!(
+        event_text(&out[0]).contains(
+            "trial 1 held every window of 10 s weighted at objective 0.450, where it measured 0.900 unweighted: the core nodes' weight takes more from the non-core apps than backing the trial off to 80 % promises (0.720)"
+        ),
+        "{out:?}"
+    );
+    assert!(!unweighted.knobs.weighted && unweighted.weight_declined);
+    assert_eq!(unweighted.rejected, vec![1]);
+    let fallback = unweighted.weighted_fallback.clone().expect("set aside");
+    assert_eq!(fallback.config.cpu_weight, weights);
+    let State::VerifyApply {
+        candidate:
+            Candidate::Backoff(Backoff {
+                index: 1,
+                fraction,
+                step: 1,
+                ..
+            }),
+        config,
+    } = &unweighted.state
+    else {
+        panic!("{:?}", unweighted.state)
+    };
+    assert!((fraction - 0.8).abs() < 1e-9);
+    assert!(config.cpu_weight.is_empty(), "{config:?}");
+
+    // The back-off holds at 0.8: kept, unweighted.
+    let (better, out) = verify_through(unweighted.clone(), &env, 8.0);
+    assert_eq!(reasons(&out), vec!["NearBoundary", "Satisfied", "<save>"]);
+    let State::Monitor { config, .. } = &better.state else {
+        panic!("{:?}", better.state)
+    };
+    assert!(config.cpu_weight.is_empty());
+    assert!(better.weighted_fallback.is_none() && !better.knobs.weighted);
+
+    // The back-off holds at 0.4: the weighted config is verified again,
+    // to its record this time, and monitored.
+    let (back, out) = verify_through(unweighted.clone(), &env, 4.0);
+    assert_eq!(
+        reasons(&out),
+        vec!["NearBoundary", "Satisfied", "CoreWeighted"]
+    );
+    assert!(
+        event_text(&out[2]).contains(
+            "no unweighted config held with more objective than trial 1 weighted (0.450): verifying it again"
+        ),
+        "{out:?}"
+    );
+    let again = State::VerifyApply {
+        candidate: Candidate::Trial { index: 1 },
+        config: fallback.config.clone(),
+    };
+    assert_eq!(back.state, again);
+    assert!(back.knobs.weighted && back.weighted_fallback.is_none());
+    let (kept, out) = verify_through(back, &env, 4.5);
+    assert_eq!(reasons(&out), vec!["NearBoundary", "Satisfied", "<save>"]);
+    assert_eq!(kept.applied, Some(Candidate::Trial { index: 1 }));
+    let State::Monitor { config, .. } = &kept.state else {
+        panic!("{:?}", kept.state)
+    };
+    assert_eq!(config.cpu_weight, weights);
+
+    // The back-off misses in bursts: the run is not weighted again; the
+    // next back-offs (64 % and 51 %, promising 0.576 and 0.461, more than
+    // the weighted config's 0.45) are verified; when they miss too, the
+    // back-offs are spent and the weighted config is verified again.
+    let mut burst = [40.0; 10];
+    burst[3] = 30.0;
+    burst[7] = 30.0;
+    let mut run = unweighted;
+    for want in [0.64, 0.512] {
+        let (next, out) = verify(run, &env, &burst);
+        assert_eq!(reasons(&out), vec!["VerificationFailed", "BackingOff"]);
+        assert!(!next.knobs.weighted);
+        let State::VerifyApply {
+            candidate: Candidate::Backoff(b),
+            config,
+        } = &next.state
+        else {
+            panic!("{:?}", next.state)
+        };
+        assert!((b.fraction - want).abs() < 1e-9, "{b:?}");
+        assert!(config.cpu_weight.is_empty());
+        run = next;
+    }
+    let (spent, out) = verify(run, &env, &burst);
+    assert_eq!(reasons(&out), vec!["VerificationFailed", "CoreWeighted"]);
+    assert_eq!(spent.state, again);
+
+    // Weighted at 0.5, the weighted config outbids the 51 % back-off
+    // (0.461): verified again once the 64 % one misses.
+    let (half, out) = verify_through(reverifying_weighted(&env), &env, 5.0);
+    assert_eq!(reasons(&out)[0], "CoreUnweighted", "{out:?}");
+    let (at_64, out) = verify(half, &env, &burst);
+    assert_eq!(reasons(&out), vec!["VerificationFailed", "BackingOff"]);
+    let (back, out) = verify(at_64, &env, &burst);
+    assert_eq!(reasons(&out), vec!["VerificationFailed", "CoreWeighted"]);
+    assert_eq!(name(&back.state), "VerifyApply");
+    assert!(back.knobs.weighted);
+}
+
 #[test]
 fn a_best_trial_failing_verification_is_backed_off_before_the_next_best() {
     let (st, sp) = (stack(), spec(1.0, 5));
