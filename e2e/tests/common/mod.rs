@@ -787,10 +787,55 @@ impl Robot {
             Duration::from_millis(100),
             || nodes.iter().all(|n| self.registered(n)),
         );
-        registered.unwrap_or_else(|e| panic!("{e}\n{}", self.server_log()));
+        registered.unwrap_or_else(|e| panic!("{e}\n{}", self.registration_report(nodes)));
         if started.elapsed() > Duration::from_secs(10) {
             eprintln!("e2e: slow node start: {:?}", started.elapsed());
         }
+    }
+
+    /// What a registration timeout needs to be understood: which nodes are
+    /// still unknown to the master, their processes' states and log tails,
+    /// the machine's busiest processes (a leftover hog starves the robot)
+    /// and the server's log.
+    fn registration_report(&self, nodes: &[&str]) -> String {
+        let mut out = String::new();
+        for n in nodes.iter().filter(|n| !self.registered(n)) {
+            let pids = node_pids(&self.root, n);
+            let states: Vec<String> = pids
+                .iter()
+                .map(|p| {
+                    let stat =
+                        std::fs::read_to_string(format!("/proc/{p}/stat")).unwrap_or_default();
+                    // The state is the field after the parenthesised command.
+                    let state = stat.rsplit_once(") ").map_or("?", |(_, r)| &r[..1]);
+                    format!("{p} ({state})")
+                })
+                .collect();
+            out += &format!("{n}: not registered; processes {states:?}\n");
+            if let Ok(name) = configbot_cgroups::NodeName::new(n) {
+                let log = self
+                    .dir
+                    .path()
+                    .join("logs")
+                    .join(format!("{}.log", name.dir_name()));
+                let text = std::fs::read_to_string(&log).unwrap_or_default();
+                let tail: Vec<&str> = text.lines().rev().take(20).collect();
+                for line in tail.into_iter().rev() {
+                    out += &format!("  {line}\n");
+                }
+            }
+        }
+        if let Ok(ps) = Command::new("ps")
+            .args(["-eo", "pid,pcpu,stat,comm", "--sort=-pcpu"])
+            .output()
+        {
+            let ps = String::from_utf8_lossy(&ps.stdout);
+            out += "busiest processes:\n";
+            for line in ps.lines().take(12) {
+                out += &format!("  {line}\n");
+            }
+        }
+        out + &self.server_log()
     }
 
     /// Whether `node` is registered with the robot's ROS master: its
