@@ -807,7 +807,10 @@ impl Robot {
                     let stat =
                         std::fs::read_to_string(format!("/proc/{p}/stat")).unwrap_or_default();
                     // The state is the field after the parenthesised command.
-                    let state = stat.rsplit_once(") ").map_or("?", |(_, r)| &r[..1]);
+                    let state = stat
+                        .rsplit_once(") ")
+                        .and_then(|(_, r)| r.get(..1))
+                        .unwrap_or("?");
                     format!("{p} ({state})")
                 })
                 .collect();
