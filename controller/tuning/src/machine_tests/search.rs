@@ -398,6 +398,58 @@ fn a_verification_measured_on_holds_once_its_windows_clear_the_bar() {
     assert_eq!(req.duration_ms, 10_000, "measuring on");
 }
 
+/// A trial that was measured on near the boundary, or any trial of a run
+/// that has missed windows in a burst, is verified over the bar's whole
+/// minute, even when its first windows clear the margin: steady windows
+/// that end any other verification at 10 s go on in 10 s pieces to 60 s.
+/// A miss in a piece fails it at once.
+#[test]
+fn a_trial_measured_at_the_boundary_is_verified_over_the_whole_minute() {
+    let (st, sp) = (stack(), spec(1.0, 5));
+    let env = env(&st, &sp);
+    let run = verifying(&env);
+    let steady = [40.0; 10];
+    let (held, out) = verify(run.clone(), &env, &steady);
+    assert_eq!(
+        reasons(&out),
+        vec!["Satisfied", "<save>"],
+        "clears the margin"
+    );
+    assert_eq!(name(&held.state), "Monitor");
+
+    let mut near = run.clone();
+    near.near_boundary_trials = vec![1];
+    let mut burst = run;
+    burst.burst_windows = 1;
+    for run in [near, burst] {
+        let (mut on, out) = verify(run, &env, &steady);
+        assert_eq!(reasons(&out), vec!["NearBoundary"]);
+        assert!(
+            event_text(&out[0]).contains(
+                "trial 1 held over 10 s, its trial was measured near a core target (or this run has missed windows in a burst), so it must hold the minute without a miss; measuring on to 60 s, stopping at the first miss"
+            ),
+            "{out:?}"
+        );
+        let mut one_miss = steady;
+        one_miss[3] = 30.0;
+        let (failed, out) = step(on.clone(), report(&one_miss, 9.0), &env);
+        assert_eq!(reasons(&out)[0], "VerificationFailed", "{out:?}");
+        assert_eq!(failed.rejected, vec![1]);
+        for _ in 0..4 {
+            let Effect::Measure(req) = effect(&on, &env) else {
+                panic!("{:?}", on.state)
+            };
+            assert_eq!(req.duration_ms, 10_000);
+            let (next, out) = step(on, report(&steady, 9.0), &env);
+            assert!(out.is_empty(), "not ended by its margin: {out:?}");
+            on = next;
+        }
+        let (held, out) = step(on, report(&steady, 9.0), &env);
+        assert_eq!(reasons(&out), vec!["Satisfied", "<save>"]);
+        assert_eq!(name(&held.state), "Monitor");
+    }
+}
+
 /// In a run whose core windows missed while their means held
 /// (`Run::bursty`), a verification that holds its first measurement is
 /// measured on to `tuning.recordSeconds` (120) whatever its margin,
@@ -1255,6 +1307,11 @@ fn a_trial_near_the_boundary_is_measured_longer_not_discarded() {
     let (longer, out) = step(run.clone(), report(&steady, 2.0), &env);
     assert_eq!(reasons(&out), vec!["Trial"]);
     assert!(longer.trials[0].feasible(), "{:?}", longer.trials[0].eval);
+    assert_eq!(
+        longer.near_boundary_trials,
+        vec![0],
+        "its verification must hold the minute"
+    );
     // Five more as spread: every window of ten held, yet the bound (34.3)
     // predicts misses, so the trial is infeasible however many held. But no
     // window missed, so the corner is no evidence that nothing can meet the
