@@ -8,15 +8,9 @@ mod common;
 
 use std::time::{Duration, Instant};
 
-use common::{HOG_STACK_NODES, HOGS, Robot, hog_stack, node_pids, phase};
+use common::{HOG_STACK_NODES, HOGS, Robot, hog_stack, node_pids, phase, proc_state as state};
 use configbot_manifests::Phase;
 use configbot_test_support::try_wait_until;
-
-/// The scheduler state letter of `pid` (`T` stopped, `Z` zombie).
-fn state(pid: u32) -> Option<char> {
-    let s = std::fs::read_to_string(format!("/proc/{pid}/stat")).ok()?;
-    s.rsplit_once(')')?.1.trim_start().chars().next()
-}
 
 /// Whether rosbag's recorder (node `/record_…`) subscribes to `/scan`, by
 /// the robot's master (`rostopic info`).

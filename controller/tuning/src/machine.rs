@@ -1231,6 +1231,8 @@ pub fn step(mut run: Run, input: Input, env: &Env<'_>) -> (Run, Vec<Output>) {
             // the independent minute (5 windows missed).
             let lift = matches!(candidate, Candidate::Lift { .. });
             let close = at_the_boundary(&run, &candidate);
+            // Measured for the whole record or minute, whatever the margin.
+            let whole = run.bursty || lift || close;
             // Measured on so far, every window on target.
             let measuring_on = so_far.is_some() && short && eval.satisfaction >= 1.0;
             // A lift that shows too little of the rise it promises ends at
@@ -1272,7 +1274,7 @@ pub fn step(mut run: Run, input: Input, env: &Env<'_>) -> (Run, Vec<Output>) {
             else if so_far.is_none()
                 && short
                 && holds(&eval, true)
-                && (run.bursty || lift || close || measure::short_of_bar(&defs, &report))
+                && (whole || measure::short_of_bar(&defs, &report))
             {
                 let why = if run.bursty {
                     format!(
@@ -1289,7 +1291,7 @@ pub fn step(mut run: Run, input: Input, env: &Env<'_>) -> (Run, Vec<Output>) {
                         measure::BAR_Z
                     )
                 };
-                let until = if run.bursty || lift || close {
+                let until = if whole {
                     ""
                 } else {
                     " or once the windows so far clear that margin"
@@ -1308,9 +1310,7 @@ pub fn step(mut run: Run, input: Input, env: &Env<'_>) -> (Run, Vec<Output>) {
                     config,
                     so_far: Some(report),
                 }
-            } else if measuring_on
-                && (run.bursty || lift || close || measure::short_of_bar(&defs, &report))
-            {
+            } else if measuring_on && (whole || measure::short_of_bar(&defs, &report)) {
                 // Measuring on, every window on target so far: a bursty
                 // run's record and the minute of a lift or of a trial at the
                 // boundary ([`at_the_boundary`]) are measured whole, a

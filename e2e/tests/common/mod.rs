@@ -653,6 +653,13 @@ fn dechunk(body: &str) -> String {
 }
 
 /// Pids of the node cgroup of `node` (e.g. `/hog`) in subtree `root`.
+/// The scheduler state letter of `pid` (`R` running, `T` stopped, `Z`
+/// zombie), the field after the parenthesised command in `/proc/<pid>/stat`.
+pub fn proc_state(pid: u32) -> Option<char> {
+    let s = std::fs::read_to_string(format!("/proc/{pid}/stat")).ok()?;
+    s.rsplit_once(')')?.1.trim_start().chars().next()
+}
+
 pub fn node_pids(root: &str, node: &str) -> Vec<u32> {
     let Some(b) = v1_backend(root) else {
         return Vec::new();
@@ -803,16 +810,7 @@ impl Robot {
             let pids = node_pids(&self.root, n);
             let states: Vec<String> = pids
                 .iter()
-                .map(|p| {
-                    let stat =
-                        std::fs::read_to_string(format!("/proc/{p}/stat")).unwrap_or_default();
-                    // The state is the field after the parenthesised command.
-                    let state = stat
-                        .rsplit_once(") ")
-                        .and_then(|(_, r)| r.get(..1))
-                        .unwrap_or("?");
-                    format!("{p} ({state})")
-                })
+                .map(|&p| format!("{p} ({})", proc_state(p).unwrap_or('?')))
                 .collect();
             out += &format!("{n}: not registered; processes {states:?}\n");
             if let Ok(name) = configbot_cgroups::NodeName::new(n) {
