@@ -836,26 +836,20 @@ mod tests {
     }
 
     /// The oracles committed under `docs/oracles/<class>/` stay usable by
-    /// `--oracle-from`: each is for today's manifests (a change to a real
-    /// stack's manifests fails here until it is measured again), and some
-    /// class holds one per real stack. A class measured for some stacks
-    /// only serves `--stacks` naming those. The machine class is the
-    /// file's own: this runs on any machine.
+    /// `--oracle-from`: one per real stack, each for today's manifests (a
+    /// change to a real stack's manifests fails here until it is measured
+    /// again). The machine class is the file's own: this runs on any machine.
     #[test]
     fn committed_oracles_are_of_todays_manifests() {
         let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../docs/oracles");
-        let mut complete = 0;
+        let mut classes = 0;
         for class in std::fs::read_dir(&root).expect("docs/oracles") {
             let dir = class.unwrap().path();
             if !dir.is_dir() {
                 continue;
             }
-            let present: Vec<&str> = STACKS
-                .into_iter()
-                .filter(|name| oracle_path(&dir, name).exists())
-                .collect();
-            assert!(!present.is_empty(), "{}: no oracle", dir.display());
-            for name in &present {
+            classes += 1;
+            for name in STACKS {
                 let (o, _) = read_oracle(&dir, name, None).unwrap_or_else(|e| panic!("{e}"));
                 assert!(
                     o.machine.is_some() && o.stack_digest.is_some(),
@@ -863,13 +857,8 @@ mod tests {
                     dir.display()
                 );
             }
-            complete += usize::from(present.len() == STACKS.len());
         }
-        assert!(
-            complete > 0,
-            "no machine class under {} holds every real stack's oracle",
-            root.display()
-        );
+        assert!(classes > 0, "no machine class under {}", root.display());
     }
 
     #[test]
