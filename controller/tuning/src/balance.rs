@@ -5,7 +5,10 @@
 //! out + `b` per message taken in) and the input it needs, and all of them
 //! get the same share of their targets: as high as the CPU the trials'
 //! non-core apps used together, in a trial that held every core target,
-//! allows ([`balanced`]).
+//! allows ([`balanced`]). The objectives without such an app keep what the
+//! base trial measured, so under max-min the config promises no more than
+//! the worst of them (`Balanced::promise`), and it is measured only when
+//! that is more than the base trial's objective (`search::balance_next`).
 //!
 //! Why: the non-core detectors of a real stack are saturated in most
 //! trials, and a saturated app takes an equal CFS share of what the core
@@ -69,6 +72,10 @@ pub struct App {
 pub struct Balanced {
     /// The share of its target each balanced objective is to reach.
     pub level: f64,
+    /// The max-min objective the config promises: the level, or the worst
+    /// objective it does not balance as the base trial measured it, if
+    /// that is lower (it leaves those objectives' knobs as they were).
+    pub promise: f64,
     /// The CPUs the non-core apps may use together, and what the others
     /// (pinned or not balanced) used in the base trial.
     pub budget: f64,
@@ -275,6 +282,7 @@ pub fn balanced(
     });
     (!seen).then_some(Balanced {
         level,
+        promise: level.min(rest),
         budget,
         others,
         apps,
@@ -417,6 +425,7 @@ mod tests {
         let level = (budget - 0.05) / per_level;
         assert!((b.level - level).abs() < 1e-6, "{b:?}");
         assert!(b.level < LEVEL_CAP);
+        assert_eq!(b.promise, b.level, "every objective is balanced");
         let flow = &b.apps[0];
         assert!((flow.a - 0.1).abs() < 1e-6 && (flow.b - 0.004).abs() < 1e-6);
         assert!((flow.output - 4.0 * level).abs() < 1e-6);
@@ -475,6 +484,10 @@ mod tests {
         let b = balanced(&k, &d, &trials, &trials[0], 1.0).unwrap();
         assert_eq!(b.apps.len(), 2);
         assert!((b.level - 0.3 * measure::LIFT_TIE).abs() < 1e-9, "{b:?}");
+        assert!(
+            (b.promise - 0.3).abs() < 1e-9,
+            "people, not balanced, bounds what it promises: {b:?}"
+        );
         assert!((b.others - 0.55).abs() < 1e-9);
         assert_eq!(b.x[4], 0.5, "the knob not balanced keeps the base's value");
     }

@@ -2285,21 +2285,28 @@ fn detector_at(config: &ResourceConfig) -> Input {
     Input::Measured(r)
 }
 
-#[test]
-fn once_the_design_is_measured_balanced_trials_are_measured_where_the_run_says() {
-    let (st, sp) = (camera_in_core(), spec(0.0, 20));
-    let env = env(&st, &sp);
+/// A run of the detector harness under `sp`, to its end or 200 steps:
+/// the run, for each balanced event the trials measured by then and the
+/// design points left, and how many trials were proposed once the initial
+/// design was measured (where a balanced trial may be).
+fn balancing_run(sp: &PerformanceSpec) -> (Run, Vec<(usize, usize)>, usize) {
+    let st = camera_in_core();
+    let env = env(&st, sp);
     let mut run = with(State::Baseline {
         graph: graph(),
         prior: None,
     });
     let mut input = detector_at(&ResourceConfig::default());
-    // Each balanced event: the trials measured by then and the design
-    // points left.
     let mut balancing = Vec::new();
+    let mut after_design = 0;
     for _ in 0..200 {
         let out;
         (run, out) = step(run, input, &env);
+        if matches!(run.state, State::TrialApply { .. })
+            && run.optimizer.as_ref().is_some_and(|o| o.design_left() == 0)
+        {
+            after_design += 1;
+        }
         for o in &out {
             if let Output::Event {
                 reason: Reason::Balancing,
@@ -2318,6 +2325,12 @@ fn once_the_design_is_measured_balanced_trials_are_measured_where_the_run_says()
             _ => break,
         };
     }
+    (run, balancing, after_design)
+}
+
+#[test]
+fn once_the_design_is_measured_balanced_trials_are_measured_where_the_run_says() {
+    let (run, balancing, _) = balancing_run(&spec(0.0, 20));
     // The detector wastes CPU on frames it cannot use in most trials, so
     // some balanced config promises more than the best trial so far.
     assert!(
@@ -2338,4 +2351,31 @@ fn once_the_design_is_measured_balanced_trials_are_measured_where_the_run_says()
             "its CPU use measured"
         );
     }
+}
+
+/// Under max-min a balanced config lifts only the objectives it balances:
+/// when the worst is one whose app has no knobs of its own (here the core
+/// camera's image rate, 30 of 150 Hz: 0.2), it promises no more than the
+/// best trial and is not measured, though the detector's share could rise
+/// past 0.2.
+#[test]
+fn no_balanced_trial_when_the_worst_objective_is_not_balanced() {
+    let mut sp = spec(0.0, 20);
+    sp.spec.metrics.push(
+        serde_json::from_value(serde_json::json!(
+            {"name": "img", "app": "det", "source": {"topicRate": {"topic": "/image"}}, "target": {"atLeast": 150}}
+        ))
+        .unwrap(),
+    );
+    let (run, balancing, after_design) = balancing_run(&sp);
+    let best = run
+        .trials
+        .iter()
+        .filter(|t| t.feasible())
+        .filter_map(|t| t.eval.objective)
+        .fold(0.0, f64::max);
+    assert!((best - 0.2).abs() < 1e-6, "img bounds every trial: {best}");
+    assert!(after_design > 0, "no trial after the initial design");
+    assert!(balancing.is_empty(), "balanced at {balancing:?}");
+    assert!(run.balanced.is_empty());
 }
