@@ -652,7 +652,6 @@ fn dechunk(body: &str) -> String {
     out
 }
 
-/// Pids of the node cgroup of `node` (e.g. `/hog`) in subtree `root`.
 /// The scheduler state letter of `pid` (`R` running, `T` stopped, `Z`
 /// zombie), the field after the parenthesised command in `/proc/<pid>/stat`.
 pub fn proc_state(pid: u32) -> Option<char> {
@@ -660,6 +659,7 @@ pub fn proc_state(pid: u32) -> Option<char> {
     s.rsplit_once(')')?.1.trim_start().chars().next()
 }
 
+/// Pids of the node cgroup of `node` (e.g. `/hog`) in subtree `root`.
 pub fn node_pids(root: &str, node: &str) -> Vec<u32> {
     let Some(b) = v1_backend(root) else {
         return Vec::new();
