@@ -1574,7 +1574,14 @@ pub fn lift_short(
 
 /// Goes back to the config the last lift raised (`Run::held`), drained
 /// first and settled after (`State::RestoreSettle`), and keeps it as its
-/// verification measured it.
+/// verification measured it: with the core nodes' weights it held with,
+/// also when a lift of it has weighted the run since, for what runs is
+/// then what the status and the library say was measured. Measured on
+/// Terrain-NAV (session 60's bench): a config held unweighted at
+/// objective 0.350; its lift missed in bursts and weighted the run; the
+/// config restored with the weight gave detection 0.5 Hz, objective
+/// 0.17, in the bench's measurement after tuning, while its status said
+/// 0.350.
 pub(crate) fn restore(
     run: &mut Run,
     env: &Env<'_>,
@@ -1584,7 +1591,7 @@ pub(crate) fn restore(
     let Some(h) = run.held.pop() else {
         return finish(run, env, defs, out);
     };
-    let config = run.knobs.weigh(h.config);
+    let config = h.config;
     adopt(run, env, defs, h.candidate, &config, h.eval, out);
     drain_first(run, env, State::RestoreApply { config })
 }

@@ -2252,6 +2252,49 @@ fn a_lift_that_shows_too_little_ends_before_its_record() {
     assert_eq!(name(&back.state), "RestoreApply");
 }
 
+/// A held config goes back as its verification measured it: a lift of it
+/// that missed in bursts weights the run's core nodes and is verified
+/// again weighted, and when that shows too little of its rise the run
+/// applies the held config without the weight it never held with, so the
+/// objective the status reports is the one measured for what runs.
+#[test]
+fn a_config_restored_after_its_lift_weighted_the_run_runs_as_it_held() {
+    let (st, sp) = (stack(), two_objectives());
+    let env = env(&st, &sp);
+    let mut run = held_at_detection_4(&env);
+    run.knobs.core = vec!["/planner".into()];
+    let held = run.knobs.to_config(&[1.0, 1.5]);
+    assert!(held.cpu_weight.is_empty());
+    let (lifting, out) = verify_det(run, &env, &OK, 4.0);
+    assert_eq!(reasons(&out), vec!["Satisfied", "LiftingObjectives"]);
+    // Two windows under target, the mean on it: bursts, so the lift is
+    // verified again with the core nodes weighted ...
+    let (weighted, out) = verify_det(lifting, &env, &[40.0, 30.0, 40.0, 30.0, 40.0], 8.0);
+    assert_eq!(reasons(&out), vec!["CoreWeighted"], "{out:?}");
+    let State::VerifyApply { config, .. } = &weighted.state else {
+        panic!("{:?}", weighted.state)
+    };
+    assert!(!config.cpu_weight.is_empty(), "{config:?}");
+    // ... where it shows too little of its rise: back to the held config,
+    // unweighted as it held.
+    let (back, out) = verify_det(weighted, &env, &OK, 4.4);
+    assert_eq!(
+        reasons(&out),
+        vec!["LiftingObjectives", "<save>"],
+        "{out:?}"
+    );
+    assert_eq!(back.state, State::RestoreApply { config: held });
+    assert!(
+        back.knobs.weighted,
+        "later configs of the run stay weighted"
+    );
+    let objective = back.verified.as_ref().and_then(|e| e.objective);
+    assert!(
+        objective.is_some_and(|o| (o - 0.4).abs() < 1e-6),
+        "{objective:?}"
+    );
+}
+
 /// The harness stack with the camera in the core app: the detector's CPU
 /// and its input are the only non-core knobs, both working for `det` alone.
 fn camera_in_core() -> RobotStack {
