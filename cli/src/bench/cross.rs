@@ -152,18 +152,27 @@ fn non_core(defs: &[measure::MetricDef], means: &BTreeMap<String, f64>) -> BTree
         .collect()
 }
 
-/// Measures every tuned stack's best config on every `plan.cross_on` stack.
+/// The configs the matrix carries: each simulated stack's full-ConfigBot
+/// config. A real stack's config names none of a simulated stack's nodes or
+/// edges, so on one it would drop every entry and measure the default; it
+/// is left out (pure).
+fn sources(results: &[MethodResult]) -> Vec<(&MethodResult, ResourceConfig)> {
+    results
+        .iter()
+        .filter(|r| r.method == "configbot" && !super::real::is_real(&r.stack))
+        .filter_map(|r| Some((r, serde_json::from_value(r.config.clone()).ok()?)))
+        .collect()
+}
+
+/// Measures every simulated stack's tuned config on every `plan.cross_on`
+/// stack.
 pub async fn run(
     cur: &mut Current,
     a: &BenchArgs,
     p: &Plan,
     results: &[MethodResult],
 ) -> anyhow::Result<Vec<CrossEntry>> {
-    let tuned: Vec<(&MethodResult, ResourceConfig)> = results
-        .iter()
-        .filter(|r| r.method == "configbot")
-        .filter_map(|r| Some((r, serde_json::from_value(r.config.clone()).ok()?)))
-        .collect();
+    let tuned = sources(results);
     let mut out = Vec::new();
     for (r, cfg) in &tuned {
         if p.cross_on.contains(&r.stack) {
@@ -293,6 +302,32 @@ mod tests {
         );
         assert_eq!(all.config, cfg);
         assert!(all.dropped.is_empty());
+    }
+
+    #[test]
+    fn only_the_simulated_stacks_tuned_configs_are_carried() {
+        let r = |stack: &str, method: &str| MethodResult {
+            stack: stack.into(),
+            method: method.into(),
+            satisfaction: 1.0,
+            metrics: BTreeMap::new(),
+            config: serde_json::to_value(ResourceConfig::default()).unwrap(),
+            tuning: None,
+            core_series: Vec::new(),
+            core_latency: BTreeMap::new(),
+        };
+        let results = [
+            r("real-perception", "configbot"),
+            r("basic-nav", "cgroup-only"),
+            r("basic-nav", "configbot"),
+            r("real-nodelets", "oracle"),
+            r("terrain-nav", "configbot"),
+        ];
+        let from: Vec<&str> = sources(&results)
+            .iter()
+            .map(|(r, _)| r.stack.as_str())
+            .collect();
+        assert_eq!(from, ["basic-nav", "terrain-nav"]);
     }
 
     #[test]
