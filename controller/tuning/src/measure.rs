@@ -13,14 +13,18 @@
 //!   bound, `mean − 2.33·sd` (`mean + 2.33·sd`) of the sub-window values, so a
 //!   config that meets its target only on average (and would hold in half of
 //!   the sub-windows) does not count as feasible; 2.33 sd is the 99 % one-sided
-//!   normal quantile, matching the ≥ 99 % satisfaction goal. The bound alone
-//!   decides, however many windows held: a config whose every window of ten
-//!   held can still miss one window in twenty. Measured on the real nodelet
-//!   stack: three tuned configs held every window of their trials and missed
-//!   3–4 of 60 windows afterwards. Their 60-window bounds were 23.9, 24.7
-//!   and 25.2 against 25 Hz, the oracle's config's 26.2 (no miss). An
-//!   earlier rule that let the worst window stand in for the bound from ten
-//!   windows up had chosen them. A Student-t prediction bound (k = 4.1 from
+//!   normal quantile, matching the ≥ 99 % satisfaction goal. A trial
+//!   measured on near the boundary to ten windows that all held is judged
+//!   by its windows instead ([`held_every_window`]), and its verification
+//!   must hold the whole minute: a config whose every window of ten held
+//!   can still miss one window in twenty, and the minute, not the trial, is
+//!   what tells. (Measured on the real nodelet stack, before verifications
+//!   held such trials to the minute: three configs chosen by their worst
+//!   window held every window of their trials and missed 3–4 of 60
+//!   windows afterwards, their 60-window bounds 23.9, 24.7 and 25.2
+//!   against 25 Hz. Judged by the bound alone, session 62's seed 3 called
+//!   three trials at objective 0.44–0.64 whose ten windows all held
+//!   infeasible and kept 0.508.) A Student-t prediction bound (k = 4.1 from
 //!   five windows, 2.96 from ten) was tried and dropped: it judged demo
 //!   trials whose every window held infeasible, and the demo took 13 trials
 //!   and 319 s against 254 s with 2.33 on the same busy machine, ending with
@@ -344,6 +348,27 @@ pub fn judge_by_windows(defs: &[MetricDef], report: &MeasureReport, eval: &mut E
         feasible &= measured && d.holds(w);
     }
     eval.feasible = feasible;
+}
+
+/// Whether every core constraint was measured over at least
+/// [`BOUNDARY_WINDOWS`] windows and every one of them held (pure): a trial
+/// measured on near the boundary that missed none. Such a trial is judged
+/// by its windows ([`judge_by_windows`]) in every run, bursty or not: ten
+/// windows on target are what the verification's first measurement asks
+/// of a config, and the verification, not the trial, holds it to the
+/// minute without a miss (a trial measured near a core target is verified
+/// over the whole minute, `machine::at_the_boundary`). Measured on
+/// real-nodelets (session 62, seed 3, a run that never turned bursty):
+/// judged by the bound, trials 12, 15 and 19, at objective 0.44–0.64,
+/// held all ten windows, worst 26 Hz against 25, and were called
+/// infeasible; the run kept 0.508 where the oracle's best is 0.713.
+pub fn held_every_window(defs: &[MetricDef], report: &MeasureReport) -> bool {
+    let core: Vec<&MetricDef> = defs.iter().filter(|d| d.core).collect();
+    !core.is_empty()
+        && core
+            .iter()
+            .all(|d| series(report, &d.probe).is_some_and(|v| v.len() >= BOUNDARY_WINDOWS))
+        && windows_ok(defs, report).iter().all(|ok| *ok)
 }
 
 /// Whether a measurement that is not feasible is near the boundary, so
@@ -811,6 +836,37 @@ mod tests {
         assert_eq!(e.means["cmd"], 36.0);
         assert!(!e.feasible, "mean meets the target, sub-windows do not");
         assert_eq!(e.satisfaction, 0.6);
+    }
+
+    #[test]
+    fn ten_windows_on_target_are_held_every_window_however_spread() {
+        let defs = vec![def("cmd", true, true, 25.0), def("det", false, true, 5.0)];
+        // Session 62's seed 3, trial 19: worst 26, the bound below 25.
+        let spread: Vec<f64> = [26.0, 30.0, 27.0, 31.0, 29.0].repeat(2);
+        let r = report(&[("cmd", &spread), ("det", &[1.0; 10])]);
+        assert!(!evaluate(&defs, &r, Scalarization::MaxMin).feasible);
+        assert!(held_every_window(&defs, &r));
+        // Five windows are too few, however steady.
+        let r = report(&[("cmd", &[29.0; 5]), ("det", &[1.0; 5])]);
+        assert!(!held_every_window(&defs, &r));
+        // One window of ten missed.
+        let mut one_low = spread.clone();
+        one_low[3] = 24.0;
+        let r = report(&[("cmd", &one_low), ("det", &[1.0; 10])]);
+        assert!(!held_every_window(&defs, &r));
+        // Every core constraint counts; non-core ones do not.
+        let defs = vec![
+            def("cmd", true, true, 25.0),
+            def("lat", true, false, 0.1),
+            def("det", false, true, 5.0),
+        ];
+        let r = report(&[("cmd", &spread), ("lat", &[0.05; 10]), ("det", &[0.0; 10])]);
+        assert!(held_every_window(&defs, &r));
+        let r = report(&[("cmd", &spread), ("lat", &[0.05; 9]), ("det", &[0.0; 10])]);
+        assert!(!held_every_window(&defs, &r), "lat has nine windows");
+        // No core constraint: nothing to judge by.
+        let defs = vec![def("det", false, true, 5.0)];
+        assert!(!held_every_window(&defs, &report(&[("det", &[9.0; 10])])));
     }
 
     #[test]

@@ -274,7 +274,7 @@ pub(crate) fn record_trial(
     censored: bool,
     out: &mut Vec<Output>,
 ) {
-    let eval = trial_eval(run, env, defs, report);
+    let (eval, by_windows) = trial_eval(run, env, defs, report);
     let rec = TrialRecord {
         config,
         x,
@@ -300,7 +300,14 @@ pub(crate) fn record_trial(
             } else {
                 "infeasible"
             },
-            if run.bursty { " by its windows" } else { "" },
+            match (run.bursty, by_windows) {
+                (true, _) => " by its windows".to_string(),
+                (false, true) => format!(
+                    " by its windows (all {} held)",
+                    measure::windows_ok(defs, report).len()
+                ),
+                (false, false) => String::new(),
+            },
             if censored { " (stopped early)" } else { "" }
         ),
     ));
@@ -311,14 +318,22 @@ pub(crate) fn record_trial(
     run.trials.push(rec);
 }
 
-/// A trial's evaluation (pure): judged by its windows once the run's core
-/// path is known to miss in bursts.
-fn trial_eval(run: &Run, env: &Env<'_>, defs: &[MetricDef], report: &MeasureReport) -> Evaluation {
+/// A trial's evaluation (pure), and whether it was judged by its windows:
+/// always once the run's core path is known to miss in bursts, and in any
+/// run when it was measured on near the boundary and missed no window
+/// ([`measure::held_every_window`]).
+fn trial_eval(
+    run: &Run,
+    env: &Env<'_>,
+    defs: &[MetricDef],
+    report: &MeasureReport,
+) -> (Evaluation, bool) {
     let mut eval = measure::evaluate(defs, report, env.spec.tuning.scalarization);
-    if run.bursty {
+    let by_windows = run.bursty || measure::held_every_window(defs, report);
+    if by_windows {
         measure::judge_by_windows(defs, report, &mut eval);
     }
-    eval
+    (eval, by_windows)
 }
 
 /// A measurement that would rank among the best trials so far while some
@@ -343,7 +358,7 @@ pub(crate) fn thin_contender(
     defs: &[MetricDef],
     report: &MeasureReport,
 ) -> Option<Thin> {
-    let eval = trial_eval(run, env, defs, report);
+    let (eval, _) = trial_eval(run, env, defs, report);
     let objective = eval.objective.unwrap_or(0.0);
     let contender =
         eval.feasible && objective > 0.0 && objective >= top_objective(run, |_| true) - NEAR_BEST;
