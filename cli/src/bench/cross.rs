@@ -155,11 +155,11 @@ fn non_core(defs: &[measure::MetricDef], means: &BTreeMap<String, f64>) -> BTree
 /// The configs the matrix carries: each simulated stack's full-ConfigBot
 /// config. A real stack's config names none of a simulated stack's nodes or
 /// edges, so on one it would drop every entry and measure the default; it
-/// is left out (pure).
+/// is left out (pure), as is a run that had not settled in its time.
 fn sources(results: &[MethodResult]) -> Vec<(&MethodResult, ResourceConfig)> {
     results
         .iter()
-        .filter(|r| r.method == "configbot" && !super::real::is_real(&r.stack))
+        .filter(|r| r.method == "configbot" && !super::real::is_real(&r.stack) && !r.unfinished())
         .filter_map(|r| Some((r, serde_json::from_value(r.config.clone()).ok()?)))
         .collect()
 }

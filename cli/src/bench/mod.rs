@@ -120,7 +120,10 @@ pub struct BenchArgs {
     /// of the output, not the numbers.
     #[arg(long)]
     quick: bool,
-    /// Give up a tuning run after this many seconds.
+    /// Give up a tuning run after this many seconds: its row is recorded
+    /// as unfinished (nothing measured, ranked below every measured seed)
+    /// and the bench goes on; the timeline, whose later steps need it
+    /// settled, stops with an error.
     #[arg(long, default_value_t = 900)]
     timeout_secs: u64,
     /// CPU weight of each robot's nodes together against this machine's
@@ -174,6 +177,11 @@ pub struct TuningCost {
     pub trial_history: Vec<TrialStatus>,
     /// Indices of trials whose config failed verification (status `rejectedTrials`).
     pub rejected_trials: Vec<u32>,
+    /// The run had not settled within `--timeout-secs`: `phase` and
+    /// `trials` say where it stood then, and its row measured nothing
+    /// (see [`unfinished`]).
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub unfinished: bool,
 }
 
 /// Status poll interval while following a tuning run.
@@ -199,6 +207,35 @@ pub fn tuning_cost(status: &PerformanceSpecStatus, seen: &[f64], settled_secs: f
         final_config_seconds: settled_secs,
         trial_history: status.trial_history.clone(),
         rejected_trials: status.rejected_trials.clone(),
+        unfinished: false,
+    }
+}
+
+/// The row of a tuning run that had not settled when its time ran out
+/// (pure): nothing measured, satisfaction 0 and no metrics (it delivered
+/// no config in its time; [`real::objective`] is 0), the best config its
+/// status showed, and the cost so far marked `unfinished`. Session 63: a
+/// real-nodelets seed still lifting at `--timeout-secs` ended the whole
+/// bench, and the seeds after it never ran.
+pub fn unfinished(stack: &str, method: &str, f: &Followed) -> MethodResult {
+    let mut cost = tuning_cost(&f.status, &f.seen, f.secs);
+    cost.unfinished = true;
+    MethodResult {
+        stack: stack.into(),
+        method: method.into(),
+        satisfaction: 0.0,
+        metrics: Default::default(),
+        config: serde_json::to_value(&f.status.best_config).unwrap_or(Value::Null),
+        tuning: Some(cost),
+        core_series: Vec::new(),
+        core_latency: Default::default(),
+    }
+}
+
+impl MethodResult {
+    /// A tuning run that had not settled in its time ([`unfinished`]).
+    pub fn unfinished(&self) -> bool {
+        self.tuning.as_ref().is_some_and(|t| t.unfinished)
     }
 }
 
@@ -209,15 +246,42 @@ pub fn outcome(st: &PerformanceSpecStatus) -> bool {
     settled(st) && st.best_config.is_some()
 }
 
+/// Where a followed tuning run stood when [`follow`] returned.
+#[derive(Debug, Clone)]
+pub struct Followed {
+    /// The spec's status: settled, or the last one read before the timeout.
+    pub status: PerformanceSpecStatus,
+    /// Seconds from `started` at which each trial first appeared (by index).
+    pub seen: Vec<f64>,
+    /// Seconds from `started` to the outcome, or to the timeout.
+    pub secs: f64,
+    /// Whether the run reached its [`outcome`] in time.
+    pub settled: bool,
+}
+
+impl Followed {
+    /// The settled seconds, or an error naming the spec when the run ran
+    /// out of time (a run the caller cannot go on without).
+    pub fn settled_secs(&self, name: &str) -> anyhow::Result<f64> {
+        anyhow::ensure!(
+            self.settled,
+            "{name}: tuning did not finish within {:.0} s (phase {:?})",
+            self.secs,
+            self.status.phase.as_str()
+        );
+        Ok(self.secs)
+    }
+}
+
 /// Follows a spec's tuning run from `started` (when it was applied):
-/// prints each new trial, notes when each trial first appears in the status,
-/// and returns the settled status, those seconds and the seconds to settle.
+/// prints each new trial, notes when each trial first appears in the
+/// status, and returns once the run settles or `timeout` has passed.
 pub async fn follow(
     robot: &PrivateRobot,
     name: &str,
     started: Instant,
     timeout: Duration,
-) -> anyhow::Result<(PerformanceSpecStatus, Vec<f64>, f64)> {
+) -> anyhow::Result<Followed> {
     let path = crate::client::path(Kind::PerformanceSpec, Some("default"), Some(name));
     let mut seen: Vec<f64> = Vec::new();
     loop {
@@ -228,15 +292,15 @@ pub async fn follow(
             print_trial(&st, t);
             seen.push(now);
         }
-        if outcome(&st) {
-            return Ok((st, seen, now));
+        let settled = outcome(&st);
+        if settled || started.elapsed() >= timeout {
+            return Ok(Followed {
+                status: st,
+                seen,
+                secs: now,
+                settled,
+            });
         }
-        anyhow::ensure!(
-            started.elapsed() < timeout,
-            "{name}: tuning did not finish within {} s (phase {:?})",
-            timeout.as_secs(),
-            st.phase.as_str()
-        );
         tokio::time::sleep(POLL).await;
     }
 }
@@ -695,13 +759,23 @@ async fn tuned(
         robot
             .apply(&serde_json::to_value(spec)?, Kind::PerformanceSpec)
             .await?;
-        let (st, seen, settled_secs) = follow(
+        let f = follow(
             robot,
             &spec.metadata.name,
             started,
             Duration::from_secs(a.timeout_secs),
         )
         .await?;
+        if !f.settled {
+            println!(
+                "    {method}: not settled within {} s (phase {}, {} trials): recorded as unfinished, not measured",
+                a.timeout_secs,
+                f.status.phase.as_str(),
+                f.status.trials
+            );
+            return anyhow::Ok(unfinished(name, method, &f));
+        }
+        let (st, seen, settled_secs) = (f.status, f.seen, f.secs);
         let cost = tuning_cost(&st, &seen, settled_secs);
         tokio::time::sleep(Duration::from_secs(2)).await;
         let r = measure_defs(robot.robot.as_ref(), defs, window).await?;
@@ -728,6 +802,16 @@ fn at_trial(trial: Option<u32>, secs: Option<f64>) -> String {
     }
 }
 
+/// A row's satisfaction as the tables show it: `unfinished` for a run that
+/// measured nothing.
+pub fn satisfaction(r: &MethodResult) -> String {
+    if r.unfinished() {
+        "unfinished".into()
+    } else {
+        format!("{:.1}%", r.satisfaction * 100.0)
+    }
+}
+
 /// The Table III-like summary with the tuning cost (pure).
 pub fn table(results: &[MethodResult]) -> String {
     let mut rows = Vec::new();
@@ -741,16 +825,20 @@ pub fn table(results: &[MethodResult]) -> String {
         rows.push(vec![
             r.stack.clone(),
             r.method.clone(),
-            format!("{:.1}%", r.satisfaction * 100.0),
+            satisfaction(r),
             metrics.join(" "),
-            t.map_or("-".into(), |t| format!("{} ({})", t.trials, t.phase)),
+            t.map_or("-".into(), |t| {
+                let late = if t.unfinished { ", unfinished" } else { "" };
+                format!("{} ({}{late})", t.trials, t.phase)
+            }),
             t.map_or("-".into(), |t| {
                 at_trial(t.first_feasible_trial, t.first_feasible_seconds)
             }),
             t.map_or("-".into(), |t| {
                 at_trial(t.final_trial, t.final_trial_seconds)
             }),
-            t.map_or("-".into(), |t| format!("{:.0}", t.final_config_seconds)),
+            t.filter(|t| !t.unfinished)
+                .map_or("-".into(), |t| format!("{:.0}", t.final_config_seconds)),
         ]);
     }
     let h = [
@@ -779,9 +867,11 @@ fn write_plots(
         c.title = format!("{name}: tuning progress");
         std::fs::write(out.join(format!("{name}-progress.svg")), c.to_svg())?;
     }
-    if let (Some(core), Some(d), Some(c)) =
-        (defs.iter().find(|d| d.core), of("default"), of("configbot"))
-    {
+    if let (Some(core), Some(d), Some(c)) = (
+        defs.iter().find(|d| d.core),
+        of("default"),
+        of("configbot").filter(|c| !c.unfinished()),
+    ) {
         let report = |v: &[f64]| configbot_api::measure::MeasureReport {
             started_unix_ms: 0,
             duration_ms: v.len() as u64 * 1000,
@@ -856,6 +946,51 @@ mod tests {
             (u.first_feasible_seconds, u.final_trial_seconds),
             (None, None)
         );
+    }
+
+    #[test]
+    fn a_run_past_its_timeout_is_a_row_that_measured_nothing() {
+        let lifting = PerformanceSpecStatus {
+            phase: Phase::Satisfied,
+            ..settled_status()
+        };
+        let f = Followed {
+            status: lifting,
+            seen: vec![4.0, 9.4, 14.0, 19.2],
+            secs: 1500.2,
+            settled: false,
+        };
+        let e = f.settled_secs("nav").unwrap_err().to_string();
+        assert!(e.contains("nav") && e.contains("1500 s"), "{e}");
+        let r = unfinished("real-nodelets", "configbot-seed-1", &f);
+        assert!(r.unfinished());
+        assert_eq!((r.satisfaction, r.metrics.len()), (0.0, 0));
+        assert!(!r.config.is_null(), "the best config so far is kept");
+        let t = r.tuning.as_ref().unwrap();
+        assert_eq!((t.phase.clone(), t.trials), (Phase::Satisfied, 4));
+        let shown = table(std::slice::from_ref(&r));
+        assert!(
+            shown.contains("unfinished") && shown.contains("4 (Satisfied, unfinished)"),
+            "{shown}"
+        );
+        assert!(
+            shown.lines().nth(1).unwrap().trim_end().ends_with('-'),
+            "never settled: {shown}"
+        );
+        // A settled run's cost says nothing of it, in memory or in JSON.
+        let done = Followed {
+            settled: true,
+            ..f.clone()
+        };
+        assert_eq!(done.settled_secs("nav").unwrap(), 1500.2);
+        let c = tuning_cost(&settled_status(), &[4.0], 30.0);
+        assert!(!c.unfinished);
+        let json = serde_json::to_value(&c).unwrap();
+        assert!(json.get("unfinished").is_none(), "{json}");
+        let back: TuningCost = serde_json::from_value(json).unwrap();
+        assert!(!back.unfinished);
+        let json = serde_json::to_value(r.tuning.as_ref().unwrap()).unwrap();
+        assert_eq!(json["unfinished"], true);
     }
 
     #[test]

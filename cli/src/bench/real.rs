@@ -278,8 +278,12 @@ pub fn median_run(defs: &[MetricDef], runs: &[MethodResult]) -> Option<MethodRes
 }
 
 /// The scalarised objective (max-min of capped, normalised objectives) of a
-/// measured row; 1 without objectives.
+/// measured row; 1 without objectives; 0 for a run that had not settled in
+/// its time and measured nothing (so the median ranks it lowest).
 pub fn objective(defs: &[MetricDef], r: &MethodResult) -> f64 {
+    if r.unfinished() {
+        return 0.0;
+    }
     measure::scalarize(defs, &r.metrics, Default::default()).unwrap_or(1.0)
 }
 
@@ -806,7 +810,7 @@ pub fn summary(defs_of: &dyn Fn(&str) -> Vec<MetricDef>, rows: &[MethodResult]) 
         out.push(vec![
             r.stack.clone(),
             r.method.clone(),
-            format!("{:.1}%", r.satisfaction * 100.0),
+            super::satisfaction(r),
             format!("{o:.3}"),
             share("oracle"),
             share("oracle-here"),
@@ -883,6 +887,38 @@ mod tests {
         assert_eq!(s[0], "basic-nav");
         assert_eq!(&s[1..], STACKS.map(String::from));
         assert!(is_real("real-nodelets") && !is_real("basic-nav"));
+    }
+
+    #[test]
+    fn a_seed_that_did_not_settle_ranks_lowest() {
+        let mut late = row("s", "configbot-seed-2", 0.0, 0.0);
+        late.metrics.clear();
+        late.tuning = Some(super::super::TuningCost {
+            phase: configbot_manifests::Phase::Satisfied,
+            trials: 9,
+            first_feasible_trial: None,
+            first_feasible_seconds: None,
+            final_trial: None,
+            final_trial_seconds: None,
+            final_config_seconds: 1500.0,
+            trial_history: Vec::new(),
+            rejected_trials: Vec::new(),
+            unfinished: true,
+        });
+        // Without objectives a measured row scores 1; this one measured nothing.
+        assert_eq!(objective(&defs(), &late), 0.0);
+        let runs = [
+            row("s", "configbot-seed-1", 1.0, 3.0),
+            late,
+            row("s", "configbot-seed-3", 1.0, 2.0),
+        ];
+        assert_eq!(
+            median_run(&defs(), &runs).unwrap().method,
+            "configbot-seed-3"
+        );
+        let t = summary(&|_| defs(), &runs);
+        let line = t.lines().find(|l| l.contains("seed-2")).unwrap();
+        assert!(line.contains("unfinished") && line.contains("0.000"), "{t}");
     }
 
     #[test]

@@ -234,7 +234,9 @@ pub async fn run(cur: &mut Current, a: &BenchArgs, p: &Plan) -> anyhow::Result<T
         let since = |i: Instant| i.duration_since(t0).as_secs_f64();
         let basic_json = serde_json::to_value(&basic_spec)?;
         robot.apply(&basic_json, Kind::PerformanceSpec).await?;
-        let (_, _, s) = follow(robot, &basic_spec.metadata.name, t0, timeout).await?;
+        let s = follow(robot, &basic_spec.metadata.name, t0, timeout)
+            .await?
+            .settled_secs(&basic_spec.metadata.name)?;
         until(t0, (p.switch_at as f64).max(s + p.hold as f64)).await;
 
         println!("==> timeline: switching the robot to terrain-nav");
@@ -254,7 +256,9 @@ pub async fn run(cur: &mut Current, a: &BenchArgs, p: &Plan) -> anyhow::Result<T
             stack_up: since(up),
             spec_applied: since(Instant::now()),
         };
-        let (_, _, s) = follow(robot, &terrain_spec.metadata.name, at, timeout).await?;
+        let s = follow(robot, &terrain_spec.metadata.name, at, timeout)
+            .await?
+            .settled_secs(&terrain_spec.metadata.name)?;
         until(at, s + p.hold as f64).await;
 
         println!("==> timeline: switching the robot back to basic-nav");
@@ -269,7 +273,9 @@ pub async fn run(cur: &mut Current, a: &BenchArgs, p: &Plan) -> anyhow::Result<T
             stack_up: since(up),
             spec_applied: since(Instant::now()),
         };
-        let (_, _, s) = follow(robot, &basic_spec.metadata.name, at, timeout).await?;
+        let s = follow(robot, &basic_spec.metadata.name, at, timeout)
+            .await?
+            .settled_secs(&basic_spec.metadata.name)?;
         until(at, s + p.hold as f64).await;
         anyhow::Ok((sw1, sw2, notes))
     }
