@@ -179,7 +179,7 @@ pub struct TuningCost {
     pub rejected_trials: Vec<u32>,
     /// The run had not settled within `--timeout-secs`: `phase` and
     /// `trials` say where it stood then, and its row measured nothing
-    /// (see [`unfinished`]).
+    /// (see [`unfinished_row`]).
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub unfinished: bool,
 }
@@ -217,7 +217,7 @@ pub fn tuning_cost(status: &PerformanceSpecStatus, seen: &[f64], settled_secs: f
 /// status showed, and the cost so far marked `unfinished`. Session 63: a
 /// real-nodelets seed still lifting at `--timeout-secs` ended the whole
 /// bench, and the seeds after it never ran.
-pub fn unfinished(stack: &str, method: &str, f: &Followed) -> MethodResult {
+pub fn unfinished_row(stack: &str, method: &str, f: &Followed) -> MethodResult {
     let mut cost = tuning_cost(&f.status, &f.seen, f.secs);
     cost.unfinished = true;
     MethodResult {
@@ -233,7 +233,7 @@ pub fn unfinished(stack: &str, method: &str, f: &Followed) -> MethodResult {
 }
 
 impl MethodResult {
-    /// A tuning run that had not settled in its time ([`unfinished`]).
+    /// A tuning run that had not settled in its time ([`unfinished_row`]).
     pub fn unfinished(&self) -> bool {
         self.tuning.as_ref().is_some_and(|t| t.unfinished)
     }
@@ -773,10 +773,9 @@ async fn tuned(
                 f.status.phase.as_str(),
                 f.status.trials
             );
-            return anyhow::Ok(unfinished(name, method, &f));
+            return anyhow::Ok(unfinished_row(name, method, &f));
         }
-        let (st, seen, settled_secs) = (f.status, f.seen, f.secs);
-        let cost = tuning_cost(&st, &seen, settled_secs);
+        let cost = tuning_cost(&f.status, &f.seen, f.secs);
         tokio::time::sleep(Duration::from_secs(2)).await;
         let r = measure_defs(robot.robot.as_ref(), defs, window).await?;
         anyhow::Ok(result(
@@ -784,7 +783,7 @@ async fn tuned(
             method,
             defs,
             &r,
-            serde_json::to_value(&st.best_config)?,
+            serde_json::to_value(&f.status.best_config)?,
             Some(cost),
         ))
     }
@@ -962,7 +961,7 @@ mod tests {
         };
         let e = f.settled_secs("nav").unwrap_err().to_string();
         assert!(e.contains("nav") && e.contains("1500 s"), "{e}");
-        let r = unfinished("real-nodelets", "configbot-seed-1", &f);
+        let r = unfinished_row("real-nodelets", "configbot-seed-1", &f);
         assert!(r.unfinished());
         assert_eq!((r.satisfaction, r.metrics.len()), (0.0, 0));
         assert!(!r.config.is_null(), "the best config so far is kept");

@@ -352,7 +352,8 @@ pub fn judge_by_windows(defs: &[MetricDef], report: &MeasureReport, eval: &mut E
 
 /// Whether every core constraint was measured over at least
 /// [`BOUNDARY_WINDOWS`] windows and every one of them held (pure): a trial
-/// measured on near the boundary that missed none. Such a trial is judged
+/// measured on past its own length (near the boundary, or a contender on
+/// few messages) that missed none. Such a trial is judged
 /// by its windows ([`judge_by_windows`]) in every run, bursty or not: ten
 /// windows on target are what the verification's first measurement asks
 /// of a config, and the verification, not the trial, holds it to the
