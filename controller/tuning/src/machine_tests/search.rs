@@ -947,6 +947,58 @@ fn with_an_adaptive_settle_configs_are_applied_after_a_drain_of_the_non_core_app
     );
 }
 
+/// The next trial is applied without a drain when the last trial, its
+/// config still applied, measured every node a drain works on (the
+/// detector: its CPU and its adaptor) with idle time: it kept up with its
+/// input and left nothing to clear. A detector at its limit, above 0.8 of
+/// one CPU, or not measured, is drained; so is any config once something
+/// else was applied since the trial.
+#[test]
+fn a_trial_whose_drained_nodes_idled_leaves_nothing_to_drain() {
+    let (st, sp) = (stack(), spec(4.0, 20));
+    let env = env(&st, &sp);
+    let mut run = with_two_trials(&env);
+    run.knobs.knobs.push(knobs::KnobDef {
+        name: knobs::adaptor_knob_name("/image", "/detector"),
+        target: knobs::KnobTarget::Adaptor {
+            topic: "/image".into(),
+            subscriber: "/detector".into(),
+        },
+        min: 0.5,
+        max: 30.0,
+        restricts_non_core: true,
+        feeds: Vec::new(),
+    });
+    for t in &mut run.trials {
+        t.x.push(5.0);
+        t.config = run.knobs.to_config(&t.x);
+    }
+    // The last trial gave the detector 1.9 CPUs.
+    run.current = run.trials[1].config.clone();
+    let next = run.knobs.to_config(&[1.0, 1.5, 2.0]);
+    let then = State::TrialApply {
+        x: run.knobs.from_config(&next),
+        config: next,
+    };
+    let drained = |run: &Run| name(&search::drain_first(run, &env, then.clone())) == "Drain";
+    assert!(drained(&run), "no CPU use measured");
+    for (used, drains) in [(0.4, false), (0.79, false), (0.8, true), (1.7, true)] {
+        run.trials[1].eval.usage = [("/detector".to_string(), used)].into();
+        assert_eq!(
+            drained(&run),
+            drains,
+            "the detector used {used} of 1.9 CPUs"
+        );
+    }
+    run.trials[1].eval.usage = [("/detector".to_string(), 0.4)].into();
+    run.trials[1].config.cpu.insert("/detector".into(), 0.45);
+    run.current = run.trials[1].config.clone();
+    assert!(drained(&run), "0.4 of a 0.45 CPU limit is at it");
+    run.trials[1].config.cpu.insert("/detector".into(), 1.9);
+    run.current = run.knobs.to_config(&[2.0, 1.5, 0.5]);
+    assert!(drained(&run), "another config applied since the trial");
+}
+
 #[test]
 fn the_trial_to_verify_is_the_near_best_one_that_gives_non_core_apps_the_least() {
     let (st, sp) = (stack(), spec(1.0, 5));
@@ -1405,32 +1457,45 @@ fn a_bursty_run_judges_a_trial_by_its_windows() {
 /// it is recorded: detection at 0.5 Hz counts 2.5 messages in 5 s, where
 /// one message more or less moves its objective by two fifths. One with
 /// enough messages is recorded at once, and so is a thin trial well below
-/// an earlier best: a longer measurement would not make it the best.
+/// an earlier best: a longer measurement would not make it the best. The
+/// restrictive corner, the run's first trial here, is recorded at once
+/// however thin: its objective is the least any config gives.
 #[test]
 fn a_contender_on_few_messages_is_measured_longer() {
     let (st, sp) = (stack(), spec(0.0, 20));
-    // With 2 s trials the extended length is five trials: a thin count is
-    // recorded as measured.
-    let mut short = spec(0.0, 20);
-    short.spec.tuning.trial_seconds = 2.0;
-    let (_, out) = baseline_then_first_trial(&env(&st, &short), &BAD, report(&OK[..2], 0.5));
-    assert_eq!(reasons(&out).first(), Some(&"Trial"), "{out:?}");
     let env = env(&st, &sp);
-    let (run, out) = baseline_then_first_trial(&env, &BAD, report(&OK, 0.5));
+    let (corner, out) = baseline_then_first_trial(&env, &BAD, report(&OK, 0.5));
+    assert_eq!(corner.corner_trial, Some(0));
+    assert_eq!(reasons(&out).first(), Some(&"Trial"), "{out:?}");
+    assert_eq!(corner.trials[0].eval.objective, Some(0.05));
+    // The next trial, as thin and as good, is measured on.
+    let (run, _) = step(corner.clone(), Input::Applied, &env);
+    assert_eq!(name(&run.state), "TrialProfile");
+    let (run, out) = step(run, report(&OK, 0.5), &env);
     assert_eq!(reasons(&out), vec!["FewMessages"]);
     assert!(
-        event_text(&out[0]).contains("objective 0.050 is among the best so far but rests on few messages (det 2.5 in 5 s); measuring up to 10 s"),
+        event_text(&out[0]).contains("trial 1: objective 0.050 is among the best so far but rests on few messages (det 2.5 in 5 s); measuring up to 10 s"),
         "{out:?}"
     );
-    assert!(run.trials.is_empty());
+    assert_eq!(run.trials.len(), 1);
     assert_eq!(partial_ms(&run), 5000);
     let (longer, out) = step(run, report(&OK, 0.5), &env);
-    assert_eq!(reasons(&out), vec!["Trial"]);
-    assert_eq!(longer.trials.len(), 1);
-    assert!(longer.trials[0].feasible());
+    assert_eq!(reasons(&out).first(), Some(&"Trial"), "{out:?}");
+    assert_eq!(longer.trials.len(), 2);
+    assert!(longer.trials[1].feasible());
+    // With 2 s trials the extended length is five trials: a thin count is
+    // recorded as measured.
+    let mut short_spec = spec(0.0, 20);
+    short_spec.spec.tuning.trial_seconds = 2.0;
+    let short = super::env(&st, &short_spec);
+    let (run, _) = baseline_then_first_trial(&short, &BAD, report(&OK[..2], 0.5));
+    let (run, _) = step(run, Input::Applied, &short);
+    let (run, out) = step(run, report(&OK[..2], 0.5), &short);
+    assert_eq!(reasons(&out).first(), Some(&"Trial"), "{out:?}");
+    assert_eq!(run.trials.len(), 2);
     // Ten messages in 5 s: recorded at once ...
     let (run, out) = baseline_then_first_trial(&env, &BAD, report(&OK, 2.0));
-    assert_eq!(reasons(&out), vec!["Trial"]);
+    assert_eq!(reasons(&out).first(), Some(&"Trial"), "{out:?}");
     assert_eq!(run.trials[0].eval.objective, Some(0.2));
     // ... and the next trial, thin but a quarter of that best, too.
     let (run, _) = step(run, Input::Applied, &env);
