@@ -9,7 +9,7 @@ use configbot_api::measure::MeasureReport;
 use configbot_manifests::{ConfigProfile, Reason, ResourceConfig};
 use configbot_optimizer::{Optimizer, Proposal, SafetyFloor, Settings};
 
-use super::knobs::{self, KnobSpace, KnobTarget};
+use super::knobs::{self, KnobSpace};
 use super::library;
 use super::machine::{Candidate, Env, Output, Run, SATISFIED, State, TrialRecord, normal, warning};
 use super::measure::{self, Evaluation, MetricDef};
@@ -353,7 +353,8 @@ pub(crate) struct Thin {
 /// a trial well below the best is not worth a longer measurement, however
 /// thin its count; nor is the restrictive corner ([`Run::corner_trial`]),
 /// whose objective is the least any config gives (every non-core knob at
-/// its minimum), so a finer count of it never changes which trial is best.
+/// its minimum; every other config gives the non-core apps at least as
+/// much), so a finer count of it does not change which trial is best.
 /// Measured on Basic-NAV (`./x demo`, session 65): the corner, the run's
 /// first trial and so trivially among its best, was measured 10 s instead
 /// of 5 for a detection rate of 0.4 Hz.
@@ -611,7 +612,7 @@ pub(crate) fn drain_first(run: &Run, env: &Env<'_>, then: State) -> State {
             so_far: None,
         };
     }
-    if !settle::drains(env.spec.tuning.settle_seconds) || left_no_backlog(run) {
+    if !settle::drains(env.spec.tuning.settle_seconds) {
         return then;
     }
     let config = match &then {
@@ -632,49 +633,6 @@ pub(crate) fn drain_first(run: &Run, env: &Env<'_>, then: State) -> State {
         },
         None => then,
     }
-}
-
-/// A node had idle time in a window, so it was waiting for input rather
-/// than behind it, when it used less than this share of its CPU limit and
-/// of one CPU (a node with one busy thread uses a whole CPU whatever its
-/// limit).
-pub const IDLE_SHARE: f64 = 0.8;
-
-/// Whether the run's last trial, its config still applied ([`Run::current`];
-/// every apply since would have changed it), left nothing for a drain to
-/// clear (pure): every node a drain works on — each non-core node whose CPU
-/// is searched and each non-core subscriber of a searched adaptor (see
-/// `KnobSpace::drain_point`) — had its CPU use measured in that trial and
-/// used less than [`IDLE_SHARE`] of its limit and of one CPU. A node that
-/// idled kept up with its input, so no frames piled up behind it, and the
-/// next config is measured from the state a drain would have left. A node
-/// at its limit, or one not measured, is drained as before. Measured on
-/// Basic-NAV (`./x demo`, session 65): a drain took 2–3 s of every 11 s
-/// trial, most of them after trials whose detector used 0.4 of its 1.1
-/// CPUs.
-pub fn left_no_backlog(run: &Run) -> bool {
-    let Some(last) = run.trials.last() else {
-        return false;
-    };
-    if last.censored || last.config != run.current {
-        return false;
-    }
-    let mut drained = run
-        .knobs
-        .knobs
-        .iter()
-        .filter(|k| k.restricts_non_core)
-        .map(|k| match &k.target {
-            KnobTarget::Cpu { node } => node,
-            KnobTarget::Adaptor { subscriber, .. } => subscriber,
-        });
-    drained.all(|node| {
-        let limit = last.config.cpu.get(node).copied().unwrap_or(f64::INFINITY);
-        last.eval
-            .usage
-            .get(node)
-            .is_some_and(|&used| used < IDLE_SHARE * limit.min(1.0))
-    })
 }
 
 /// Whether verifying `candidate` at `config` continues the run's last

@@ -947,58 +947,6 @@ fn with_an_adaptive_settle_configs_are_applied_after_a_drain_of_the_non_core_app
     );
 }
 
-/// The next trial is applied without a drain when the last trial, its
-/// config still applied, measured every node a drain works on (the
-/// detector: its CPU and its adaptor) with idle time: it kept up with its
-/// input and left nothing to clear. A detector at its limit, above 0.8 of
-/// one CPU, or not measured, is drained; so is any config once something
-/// else was applied since the trial.
-#[test]
-fn a_trial_whose_drained_nodes_idled_leaves_nothing_to_drain() {
-    let (st, sp) = (stack(), spec(4.0, 20));
-    let env = env(&st, &sp);
-    let mut run = with_two_trials(&env);
-    run.knobs.knobs.push(knobs::KnobDef {
-        name: knobs::adaptor_knob_name("/image", "/detector"),
-        target: knobs::KnobTarget::Adaptor {
-            topic: "/image".into(),
-            subscriber: "/detector".into(),
-        },
-        min: 0.5,
-        max: 30.0,
-        restricts_non_core: true,
-        feeds: Vec::new(),
-    });
-    for t in &mut run.trials {
-        t.x.push(5.0);
-        t.config = run.knobs.to_config(&t.x);
-    }
-    // The last trial gave the detector 1.9 CPUs.
-    run.current = run.trials[1].config.clone();
-    let next = run.knobs.to_config(&[1.0, 1.5, 2.0]);
-    let then = State::TrialApply {
-        x: run.knobs.from_config(&next),
-        config: next,
-    };
-    let drained = |run: &Run| name(&search::drain_first(run, &env, then.clone())) == "Drain";
-    assert!(drained(&run), "no CPU use measured");
-    for (used, drains) in [(0.4, false), (0.79, false), (0.8, true), (1.7, true)] {
-        run.trials[1].eval.usage = [("/detector".to_string(), used)].into();
-        assert_eq!(
-            drained(&run),
-            drains,
-            "the detector used {used} of 1.9 CPUs"
-        );
-    }
-    run.trials[1].eval.usage = [("/detector".to_string(), 0.4)].into();
-    run.trials[1].config.cpu.insert("/detector".into(), 0.45);
-    run.current = run.trials[1].config.clone();
-    assert!(drained(&run), "0.4 of a 0.45 CPU limit is at it");
-    run.trials[1].config.cpu.insert("/detector".into(), 1.9);
-    run.current = run.knobs.to_config(&[2.0, 1.5, 0.5]);
-    assert!(drained(&run), "another config applied since the trial");
-}
-
 #[test]
 fn the_trial_to_verify_is_the_near_best_one_that_gives_non_core_apps_the_least() {
     let (st, sp) = (stack(), spec(1.0, 5));
