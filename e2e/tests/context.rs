@@ -19,6 +19,9 @@ use common::{
 };
 use configbot_manifests::Phase;
 
+/// Trials each context's run may measure.
+const MAX_TRIALS: u32 = 6;
+
 fn outcome(o: &serde_json::Value) -> bool {
     matches!(phase(o), Phase::Monitoring | Phase::Unsat)
 }
@@ -36,7 +39,7 @@ fn new_app_is_detected_and_known_context_reapplies_fast() {
             run: NodeRun::Match("{rosNode: /hog6}".into()),
         }],
     );
-    let yaml = hog_stack_with(name, 6, 36.0, vec![extra]);
+    let yaml = hog_stack_with(name, MAX_TRIALS, 36.0, vec![extra]);
     let (stack, spec) = yaml.split_once("---\n").expect("two documents");
     robot.apply(stack);
     robot.wait_nodes(&common::HOG_STACK_NODES);
@@ -46,7 +49,7 @@ fn new_app_is_detected_and_known_context_reapplies_fast() {
     let a = robot.wait_for(
         "pspec",
         name,
-        Duration::from_secs(60),
+        common::run_deadline(u64::from(MAX_TRIALS)),
         "context A tuned",
         |o| phase(o) == Phase::Monitoring && o["status"]["bestConfig"].is_object(),
     );
@@ -120,7 +123,7 @@ fn new_app_is_detected_and_known_context_reapplies_fast() {
     let b = robot.wait_for(
         "pspec",
         name,
-        Duration::from_secs(60),
+        common::run_deadline(u64::from(MAX_TRIALS)),
         "context B settled",
         |o| {
             outcome(o)

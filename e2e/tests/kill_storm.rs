@@ -320,20 +320,11 @@ fn kill_storm_during_tuning_loses_nothing() {
     }
     let storm = storm_started.elapsed();
 
-    // What is left of the run may take its remaining trials (2.5 s each with
-    // the settle) and then a verification measured on to its longest record
-    // (two minutes in a run whose windows miss in bursts) for the best
-    // trial, each back-off step and the fallback, and the lifts of the held
-    // config (one fewer than the five objectives); CI timed out at 120 s
-    // while trial 21's verification measured its minute.
-    let verifications = u64::from(configbot_tuning::machine::BACKOFF_STEPS) + 2 + 4;
+    // What is left of the run may take its remaining trials and then its
+    // verifications, each measured on to its longest record (CI timed out
+    // at 120 s while trial 21's verification measured its minute).
     let remaining = u64::from(max_trials).saturating_sub(seen.len() as u64);
-    let deadline = Duration::from_millis(
-        remaining * 2500
-            + verifications
-                * (configbot_manifests::performance_spec::default_record_seconds() * 1000.0) as u64
-            + 30_000,
-    );
+    let deadline = common::run_deadline(remaining);
     let done = robot.wait_for(
         "pspec",
         name,

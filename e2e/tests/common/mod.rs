@@ -874,6 +874,24 @@ pub const HOG_STACK_NODES: [&str; 7] = [
     "/lidar", "/nav", "/hog1", "/hog2", "/hog3", "/hog4", "/hog5",
 ];
 
+/// How long a [`hog_stack`] run with `trials` trials still to measure may
+/// take to an outcome: each trial 2.5 s with its settle, then its
+/// verifications, each measured on to the longest record (the spec's
+/// default `recordSeconds`, two minutes in a run whose core windows miss in
+/// bursts) — the best trial's (again weighted once it missed in bursts),
+/// each back-off step and the fallback, and the lifts of the held config
+/// (one fewer than the objectives, at most four) — plus 30 s for the API.
+/// A deadline, not a wait: a run that settles early ends the wait at once.
+/// CI timed out at 60 s on a VM where context B's verification missed in
+/// bursts and was measured on to its record (session 65).
+#[allow(dead_code)] // not every test binary waits for a whole run
+pub fn run_deadline(trials: u64) -> Duration {
+    let verifications = u64::from(configbot_tuning::machine::BACKOFF_STEPS) + 2 + 4;
+    let record_ms =
+        (configbot_manifests::performance_spec::default_record_seconds() * 1000.0) as u64;
+    Duration::from_millis(trials * 2500 + verifications * record_ms + 30_000)
+}
+
 /// A stack whose default config violates its core constraint, and its spec
 /// (two documents). `/lidar` publishes `/scan` at 40 Hz; the core `/nav`
 /// turns each scan into `/cmd_vel` with 15 ms of CPU (0.6 CPU at 40 Hz);
